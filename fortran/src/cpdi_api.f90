@@ -1,0 +1,529 @@
+!> Flat, f2py-facing API. The only module Python sees.
+module cpdi_api
+  !! Every routine takes explicit-shape `real(c_double)` / `integer(c_int)` arrays and
+  !! returns `ierr` (0 = success, otherwise a CPDI_ERR_* code) and a message naming the
+  !! problem and the fix. Simulations live in a registry addressed by integer handles,
+  !! so several can coexist in one Python process. Nothing here stops the process.
+  use, intrinsic :: iso_c_binding, only: c_double, c_int
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, MSG_LEN, CPDI_OK, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
+                         CPDI_ERR_LAPACK
+  use cpdi_grid, only: grid_init, GRID_PAD
+  use cpdi_particles, only: particles_alloc
+  use cpdi_shape, only: shape_compute, shape_alloc, shape_slots, SHAPE_MPM, SHAPE_CPDI, &
+                        SHAPE_FAIL_NONE, SHAPE_FAIL_INVERTED
+  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, KIN_LOG, KIN_SMALL
+  use cpdi_kinematics, only: log_strain, log_strain_lapack, det2
+  use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress, &
+                       NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  implicit none
+  private
+
+  integer, parameter :: NIOPT = 6   !! shape, update, projection, kinematics, domain_scaling, fixed_dt
+  integer, parameter :: NROPT = 7   !! cfl, gx, gy, damping, dt, flip, lcrit
+
+  type :: slot_t
+    logical :: used = .false.
+    type(sim_t), allocatable :: s
+  end type slot_t
+
+  type(slot_t), allocatable, target, save :: reg(:)
+
+  public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
+            cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
+            cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
+            cpdi_set_state
+
+contains
+
+  subroutine finish(st, ierr, msg)
+    type(status_t), intent(in) :: st
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    ierr = st%code
+    msg = st%msg
+  end subroutine finish
+
+  subroutine lookup(handle, s, st)
+    !! Resolve a handle to its simulation.
+    integer(c_int), intent(in) :: handle
+    type(sim_t), pointer, intent(out) :: s
+    type(status_t), intent(inout) :: st
+    character(len=120) :: buf
+    s => null()
+    if (.not. allocated(reg)) then
+      call st%set(CPDI_ERR_HANDLE, 'no simulation exists; create one with cpdi_new')
+      return
+    end if
+    if (handle < 1 .or. handle > size(reg)) then
+      write (buf, '(a,i0,a)') 'simulation handle ', handle, ' is not valid; create one with cpdi_new'
+      call st%set(CPDI_ERR_HANDLE, trim(buf))
+      return
+    end if
+    if (.not. reg(handle)%used) then
+      write (buf, '(a,i0,a)') 'simulation handle ', handle, ' was freed; create a new one'
+      call st%set(CPDI_ERR_HANDLE, trim(buf))
+      return
+    end if
+    s => reg(handle)%s
+  end subroutine lookup
+
+  logical function finite_all(a)
+    real(c_double), intent(in) :: a(:)
+    finite_all = all(abs(a) <= huge(1.0_wp))   ! false for NaN and Inf
+  end function finite_all
+
+  subroutine cpdi_new(handle, ierr, msg)
+    !! Create an empty simulation and return its handle.
+    integer(c_int), intent(out) :: handle
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(slot_t), allocatable :: tmp(:)
+    integer :: i
+    type(status_t) :: st
+    if (.not. allocated(reg)) allocate (reg(8))
+    handle = 0
+    do i = 1, size(reg)
+      if (.not. reg(i)%used) then
+        handle = i
+        exit
+      end if
+    end do
+    if (handle == 0) then
+      allocate (tmp(2*size(reg)))
+      do i = 1, size(reg)
+        tmp(i)%used = reg(i)%used
+        if (allocated(reg(i)%s)) call move_alloc(reg(i)%s, tmp(i)%s)
+      end do
+      handle = size(reg) + 1
+      call move_alloc(tmp, reg)
+    end if
+    allocate (reg(handle)%s)
+    reg(handle)%used = .true.
+    call finish(st, ierr, msg)
+  end subroutine cpdi_new
+
+  subroutine cpdi_free(handle, ierr, msg)
+    !! Release a simulation and all its memory.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      deallocate (reg(handle)%s)
+      reg(handle)%used = .false.
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_free
+
+  subroutine cpdi_set_grid(handle, origin, ncell, h, walls, ierr, msg)
+    !! Define the background grid: origin [m], cells per direction, cell size [m],
+    !! walls (left, right, bottom, top) as 0 open, 1 slip, 2 noslip.
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(in) :: origin(2)
+    integer(c_int), intent(in) :: ncell(2)
+    real(c_double), intent(in) :: h
+    integer(c_int), intent(in) :: walls(4)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      call grid_init(s%g, origin, ncell, h, walls, st)
+      s%has_grid = st%ok()
+      s%smax = -1.0_wp
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_grid
+
+  subroutine cpdi_set_materials(handle, nmat, model, props, ierr, msg)
+    !! Define nmat materials. model: 1 hencky, 2 newtonian_fluid, 3 rigid, 4 neo_hookean.
+    !! props(:, m) = [density, youngs_modulus, poisson_ratio, bulk_modulus, viscosity, vx, vy].
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: nmat
+    integer(c_int), intent(in) :: model(nmat)
+    real(c_double), intent(in) :: props(NMATPROP, nmat)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: m
+    call lookup(handle, s, st)
+    if (st%ok() .and. nmat < 1) call st%set(CPDI_ERR_INPUT, 'at least one material is needed')
+    if (st%ok()) then
+      if (allocated(s%mats)) deallocate (s%mats, s%rigid)
+      allocate (s%mats(nmat), s%rigid(nmat))
+      do m = 1, nmat
+        call material_init(s%mats(m), model(m), props(:, m), m, st)
+        s%rigid(m) = model(m) == MAT_RIGID
+      end do
+      s%any_rigid = any(s%rigid)
+      s%has_materials = st%ok()
+      s%smax = -1.0_wp
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_materials
+
+  subroutine cpdi_set_particles(handle, n, x, v, mass, vol, r, mat, ierr, msg)
+    !! Define n particles: position x(2,n) [m], velocity v(2,n) [m/s], mass [kg/m],
+    !! volume (area) [m^2], CPDI domain vectors r(4,n) = [r1x, r1y, r2x, r2y] [m] and
+    !! 1-based material index. F starts at I and stress at zero.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: x(2, n), v(2, n), mass(n), vol(n), r(4, n)
+    integer(c_int), intent(in) :: mat(n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: ip
+    character(len=200) :: buf
+    call lookup(handle, s, st)
+    if (st%ok() .and. n < 1) call st%set(CPDI_ERR_INPUT, 'at least one particle is needed')
+    if (st%ok()) then
+      if (.not. (finite_all(reshape(x, [2*n])) .and. finite_all(reshape(v, [2*n])) .and. &
+                 finite_all(reshape(r, [4*n])))) then
+        call st%set(CPDI_ERR_INPUT, 'particle positions, velocities or domains contain NaN or Inf; '// &
+                    'give finite values')
+      else if (.not. (all(mass > 0.0_wp) .and. finite_all(mass))) then
+        ip = findloc(.not. (mass > 0.0_wp .and. mass <= huge(1.0_wp)), .true., 1)
+        write (buf, '(a,i0,a,es11.3,a)') 'particle ', ip, ' has mass ', mass(ip), &
+          '; masses must be positive and finite (check density and volume)'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      else if (.not. (all(vol > 0.0_wp) .and. finite_all(vol))) then
+        ip = findloc(.not. (vol > 0.0_wp .and. vol <= huge(1.0_wp)), .true., 1)
+        write (buf, '(a,i0,a,es11.3,a)') 'particle ', ip, ' has volume ', vol(ip), &
+          '; volumes must be positive and finite'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      else if (any(r(1, :)*r(4, :) - r(2, :)*r(3, :) <= 0.0_wp)) then
+        ip = findloc(r(1, :)*r(4, :) - r(2, :)*r(3, :) <= 0.0_wp, .true., 1)
+        write (buf, '(a,i0,a)') 'particle ', ip, ' has a degenerate or inverted domain (r1 x r2 <= 0); '// &
+          'give r1, r2 counter-clockwise with positive area'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      end if
+    end if
+    if (st%ok()) then
+      call particles_alloc(s%p, n, st)
+      if (st%ok()) then
+        s%p%x = x
+        s%p%v = v
+        s%p%m = mass
+        s%p%vol0 = vol
+        s%p%vol = vol
+        s%p%r0 = r
+        s%p%r = r
+        s%p%mat = mat
+        s%t = 0.0_wp
+        s%steps = 0
+        s%diag = 0.0_wp
+        s%timers = 0.0_wp
+        s%smax = -1.0_wp
+        s%has_particles = .true.
+      end if
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_particles
+
+  subroutine cpdi_set_state(handle, n, v, F, t, ierr, msg)
+    !! Overwrite particle velocities, deformation gradients (4,n) and the clock, e.g. to
+    !! impose an initial deformation; stress, volume and domains follow from F.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: v(2, n), F(4, n)
+    real(c_double), intent(in) :: t
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: ip
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before their state')
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'state arrays must have one column per particle')
+    if (st%ok()) then
+      if (.not. (finite_all(reshape(v, [2*n])) .and. finite_all(reshape(F, [4*n])) .and. abs(t) <= huge(t))) then
+        call st%set(CPDI_ERR_INPUT, 'state contains NaN or Inf; give finite values')
+      else if (any(F(1, :)*F(4, :) - F(3, :)*F(2, :) <= 0.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'deformation gradient with det F <= 0; give det F > 0')
+      end if
+    end if
+    if (st%ok()) then
+      s%p%v = v
+      s%p%F = F
+      s%t = t
+      do ip = 1, n
+        s%p%jbar(ip) = det2(F(:, ip))
+        s%p%vol(ip) = s%p%jbar(ip)*s%p%vol0(ip)
+        s%p%r(1, ip) = F(1, ip)*s%p%r0(1, ip) + F(3, ip)*s%p%r0(2, ip)
+        s%p%r(2, ip) = F(2, ip)*s%p%r0(1, ip) + F(4, ip)*s%p%r0(2, ip)
+        s%p%r(3, ip) = F(1, ip)*s%p%r0(3, ip) + F(3, ip)*s%p%r0(4, ip)
+        s%p%r(4, ip) = F(2, ip)*s%p%r0(3, ip) + F(4, ip)*s%p%r0(4, ip)
+      end do
+      s%smax = -1.0_wp
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_state
+
+  subroutine cpdi_set_options(handle, iopt, ropt, ierr, msg)
+    !! iopt = [shape (0 mpm, 1 gimp, 2 cpdi), update (0 usl, 1 musl), projection,
+    !!         kinematics (0 log, 1 small), domain_scaling (0/1), fixed_dt (0/1)]
+    !! ropt = [cfl, gravity_x, gravity_y, damping, dt, flip, lcrit]
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: iopt(NIOPT)
+    real(c_double), intent(in) :: ropt(NROPT)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      if (.not. finite_all(ropt)) then
+        call st%set(CPDI_ERR_INPUT, 'solver options contain NaN or Inf; give finite values')
+      else if (iopt(1) < SHAPE_MPM .or. iopt(1) > SHAPE_CPDI) then
+        call st%set(CPDI_ERR_INPUT, 'shape must be 0 (mpm), 1 (gimp) or 2 (cpdi)')
+      else if (iopt(2) /= UPDATE_USL .and. iopt(2) /= UPDATE_MUSL) then
+        call st%set(CPDI_ERR_INPUT, 'update must be 0 (usl) or 1 (musl)')
+      else if (iopt(3) /= 0) then
+        call st%set(CPDI_ERR_INPUT, 'projection must be 0 (none) in this build')
+      else if (iopt(4) /= KIN_LOG .and. iopt(4) /= KIN_SMALL) then
+        call st%set(CPDI_ERR_INPUT, 'kinematics must be 0 (log) or 1 (small)')
+      else if (any(iopt(5:6) < 0) .or. any(iopt(5:6) > 1)) then
+        call st%set(CPDI_ERR_INPUT, 'domain_scaling and fixed_dt are flags: 0 or 1')
+      else if (.not. (ropt(1) > 0.0_wp .and. ropt(1) <= 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'cfl must lie in (0, 1]; 0.1-0.5 is typical')
+      else if (.not. (ropt(4) >= 0.0_wp .and. ropt(4) < 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'damping must lie in [0, 1)')
+      else if (iopt(6) == 1 .and. .not. (ropt(5) > 0.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'a fixed time step dt must be positive (s)')
+      else if (.not. (ropt(6) >= 0.0_wp .and. ropt(6) <= 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'flip must lie in [0, 1]')
+      else if (.not. (ropt(7) > 0.0_wp .and. ropt(7) <= 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'lcrit must lie in (0, 1] (fraction of the cell size)')
+      end if
+    end if
+    if (st%ok()) then
+      s%opt%shape = iopt(1)
+      s%opt%update = iopt(2)
+      s%opt%projection = iopt(3)
+      s%opt%kinematics = iopt(4)
+      s%opt%domain_scaling = iopt(5)
+      s%opt%fixed_dt = iopt(6)
+      s%opt%cfl = ropt(1)
+      s%opt%gravity = ropt(2:3)
+      s%opt%damping = ropt(4)
+      s%opt%dt = ropt(5)
+      s%opt%flip = ropt(6)
+      s%opt%lcrit = ropt(7)
+      s%smax = -1.0_wp
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_options
+
+  subroutine cpdi_set_body_force(handle, n, b, ierr, msg)
+    !! External body force per unit mass b(2,n) [m/s^2], added to gravity, kept until reset.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: b(2, n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before body forces')
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body force needs one column per particle')
+    if (st%ok() .and. .not. finite_all(reshape(b, [2*n]))) &
+      call st%set(CPDI_ERR_INPUT, 'body force contains NaN or Inf')
+    if (st%ok()) s%p%bf = b
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_body_force
+
+  subroutine cpdi_advance(handle, t_end, max_steps, nsteps, t, ierr, msg)
+    !! Step until the clock reaches t_end (the last step is shortened to land on it) or
+    !! max_steps steps were taken. Returns the steps taken and the new time.
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(in) :: t_end
+    integer(c_int), intent(in) :: max_steps
+    integer(c_int), intent(out) :: nsteps
+    real(c_double), intent(out) :: t
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    real(wp) :: eps
+    nsteps = 0
+    t = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) call sim_prepare(s, st)
+    if (st%ok() .and. .not. (abs(t_end) <= huge(t_end))) call st%set(CPDI_ERR_INPUT, 't_end must be finite')
+    if (st%ok()) then
+      eps = 1.0e-12_wp*max(abs(t_end), 1.0e-300_wp)
+      do while (s%t < t_end - eps .and. nsteps < max_steps)
+        call sim_step(s, t_end - s%t, st)
+        if (.not. st%ok()) exit
+        nsteps = nsteps + 1
+      end do
+      t = s%t
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_advance
+
+  subroutine cpdi_stable_dt(handle, dt, ierr, msg)
+    !! Stable time step of the current state (before the CFL factor) [s].
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: dt
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    dt = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) call sim_prepare(s, st)
+    if (st%ok()) dt = sim_stable_dt(s)
+    call finish(st, ierr, msg)
+  end subroutine cpdi_stable_dt
+
+  subroutine cpdi_get_state(handle, n, x, v, F, sig, vol, r, ierr, msg)
+    !! Copy out particle positions, velocities, F (4,n), Cauchy stress (4,n)
+    !! [sxx, syy, sxy, szz], current volumes and current domain vectors (4,n).
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(out) :: x(2, n), v(2, n), F(4, n), sig(4, n), vol(n), r(4, n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    x = 0.0_wp
+    v = 0.0_wp
+    F = 0.0_wp
+    sig = 0.0_wp
+    vol = 0.0_wp
+    r = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'no particles set')
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
+    if (st%ok()) then
+      x = s%p%x
+      v = s%p%v
+      F = s%p%F
+      sig = s%p%sig
+      vol = s%p%vol
+      r = s%p%r
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_get_state
+
+  subroutine cpdi_get_diag(handle, diag, ierr, msg)
+    !! diag = [t, dt, steps, kinetic, strain energy, momentum x, y, work of gravity,
+    !!         work of body forces, total mass, max signal speed, wall clamps last step]
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: diag(NDIAG)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    diag = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) diag = s%diag
+    call finish(st, ierr, msg)
+  end subroutine cpdi_get_diag
+
+  subroutine cpdi_get_timers(handle, timers, ierr, msg)
+    !! Seconds spent per phase: shape, P2G, grid, G2P, deformation, stress.
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: timers(NTIMER)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    timers = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) timers = s%timers
+    call finish(st, ierr, msg)
+  end subroutine cpdi_get_timers
+
+  subroutine cpdi_grid_info(handle, info, ierr, msg)
+    !! info = [x of node (1,1), y of node (1,1), h, nodes in x, nodes in y, pad]
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: info(6)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    info = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. s%has_grid) call st%set(CPDI_ERR_STATE, 'no grid set')
+    if (st%ok()) info = [s%g%gorig(1), s%g%gorig(2), s%g%h, real(s%g%nn(1), wp), real(s%g%nn(2), wp), &
+                         real(GRID_PAD, wp)]
+    call finish(st, ierr, msg)
+  end subroutine cpdi_grid_info
+
+  subroutine cpdi_get_shape(handle, n, ns, idx, w, gx, gy, ierr, msg)
+    !! Interpolation weights of the current configuration: for each particle ns slots of
+    !! 1-based node index, S_ip and grad S_ip. Unused slots have weight 0.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n, ns
+    integer(c_int), intent(out) :: idx(ns, n)
+    real(c_double), intent(out) :: w(ns, n), gx(ns, n), gy(ns, n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: bad, fail, m
+    character(len=200) :: buf
+    idx = 1
+    w = 0.0_wp
+    gx = 0.0_wp
+    gy = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) call sim_prepare(s, st)
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
+    if (st%ok() .and. ns < s%sh%ns) call st%set(CPDI_ERR_INPUT, 'ns is smaller than the slots of this shape')
+    if (st%ok()) then
+      call shape_compute(s%g, s%p, s%sh, bad, fail)
+      if (bad /= 0) then
+        write (buf, '(a,i0,a)') 'particle ', bad, ' support is outside the grid or its domain is inverted'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      else
+        m = s%sh%ns
+        idx(1:m, :) = s%sh%idx
+        w(1:m, :) = s%sh%w
+        gx(1:m, :) = s%sh%gx
+        gy(1:m, :) = s%sh%gy
+      end if
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_get_shape
+
+  subroutine cpdi_log_strain(n, F, method, eps, ierr, msg)
+    !! Log strain 1/2 log(F F^T) of n plane-strain gradients F(4,n); eps(3,n) = [e11, e22, e12].
+    !! method 0: closed form used by the solver; 1: LAPACK dsyev.
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: F(4, n)
+    integer(c_int), intent(in) :: method
+    real(c_double), intent(out) :: eps(3, n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    integer(ik) :: ip, info
+    character(len=120) :: buf
+    eps = 0.0_wp
+    if (method /= 0 .and. method /= 1) call st%set(CPDI_ERR_INPUT, 'method must be 0 (closed form) or 1 (dsyev)')
+    do ip = 1, n
+      if (.not. st%ok()) exit
+      if (.not. (det2(F(:, ip)) > 0.0_wp) .or. .not. finite_all(F(:, ip))) then
+        write (buf, '(a,i0,a)') 'F number ', ip, ' has det F <= 0 or is not finite; log strain needs J > 0'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+        exit
+      end if
+      if (method == 0) then
+        call log_strain(F(:, ip), eps(:, ip))
+      else
+        call log_strain_lapack(F(:, ip), eps(:, ip), info)
+        if (info /= 0) call st%set(CPDI_ERR_LAPACK, 'dsyev failed')
+      end if
+    end do
+    call finish(st, ierr, msg)
+  end subroutine cpdi_log_strain
+end module cpdi_api

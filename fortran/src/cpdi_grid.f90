@@ -1,0 +1,178 @@
+!> Uniform background grid with bilinear nodal functions and wall conditions.
+module cpdi_grid
+  !! The physical domain is `[origin, origin + ncell*h]`. Its four edges are walls of
+  !! kind open, slip or noslip. The node arrays extend `GRID_PAD` cells beyond every
+  !! edge so that GIMP supports and CPDI corners of particles near a wall have nodes to
+  !! map to; nodes on or beyond a closed wall have their wall-normal (slip) or full
+  !! (noslip) velocity set to zero.
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_ALLOC
+  implicit none
+  private
+
+  integer(ik), parameter, public :: WALL_OPEN = 0     !! no condition
+  integer(ik), parameter, public :: WALL_SLIP = 1     !! zero normal velocity
+  integer(ik), parameter, public :: WALL_NOSLIP = 2   !! zero velocity
+  integer(ik), parameter, public :: GRID_PAD = 2      !! ghost cells beyond each edge
+  integer(ik), parameter, public :: MAX_NODES = 200000000 !! guard against absurd grids
+
+  type, public :: grid_t
+    !! Geometry and nodal fields (structure of arrays, one entry per node).
+    real(wp) :: origin(2) = 0.0_wp        !! lower-left corner of the physical domain [m]
+    real(wp) :: h = 0.0_wp                !! cell size [m]
+    real(wp) :: gorig(2) = 0.0_wp         !! position of node (1,1) [m]
+    integer(ik) :: ncell(2) = 0           !! physical cells per direction
+    integer(ik) :: nn(2) = 0              !! nodes per direction, padding included
+    integer(ik) :: nnodes = 0             !! total nodes
+    integer(ik) :: walls(4) = WALL_OPEN   !! left, right, bottom, top
+    integer(ik) :: wall_node(4) = 0       !! node index (per axis) of each wall plane
+    real(wp), allocatable :: m(:)         !! nodal mass
+    real(wp), allocatable :: px(:), py(:) !! nodal momentum, then velocity at t^n
+    real(wp), allocatable :: fx(:), fy(:) !! nodal force
+    real(wp), allocatable :: vx(:), vy(:) !! nodal velocity at t^{n+1}
+    real(wp), allocatable :: mr(:)        !! mass of rigid particles at the node
+    real(wp), allocatable :: prx(:), pry(:) !! momentum of rigid particles at the node
+    real(wp), allocatable :: wsum(:)      !! work array (projection, contact)
+  contains
+    procedure :: node_id => grid_node_id
+    procedure :: node_x => grid_node_x
+  end type grid_t
+
+  public :: grid_init, grid_clear, grid_apply_walls
+
+contains
+
+  subroutine grid_init(g, origin, ncell, h, walls, st)
+    !! Validate and allocate a grid.
+    type(grid_t), intent(inout) :: g
+    real(wp), intent(in) :: origin(2)   !! lower-left corner [m]
+    integer(ik), intent(in) :: ncell(2) !! physical cells per direction
+    real(wp), intent(in) :: h           !! cell size [m]
+    integer(ik), intent(in) :: walls(4) !! wall kinds: left, right, bottom, top
+    type(status_t), intent(inout) :: st
+    character(len=160) :: buf
+    integer :: ierr
+
+    if (.not. (h > 0.0_wp) .or. h > huge(1.0_wp)) then
+      write (buf, '(a,es12.4,a)') 'grid cell size is ', h, '; it must be a positive finite length in m'
+      call st%set(CPDI_ERR_INPUT, trim(buf))
+      return
+    end if
+    if (any(origin /= origin) .or. any(abs(origin) > huge(1.0_wp))) then
+      call st%set(CPDI_ERR_INPUT, 'grid origin is not finite; give two finite coordinates in m')
+      return
+    end if
+    if (any(ncell < 1)) then
+      write (buf, '(a,2i8,a)') 'grid has ', ncell, ' cells; each direction needs at least one cell'
+      call st%set(CPDI_ERR_INPUT, trim(buf))
+      return
+    end if
+    if (any(walls < WALL_OPEN) .or. any(walls > WALL_NOSLIP)) then
+      call st%set(CPDI_ERR_INPUT, 'wall kind must be 0 (open), 1 (slip) or 2 (noslip)')
+      return
+    end if
+    if (real(ncell(1) + 1 + 2*GRID_PAD, wp)*real(ncell(2) + 1 + 2*GRID_PAD, wp) > MAX_NODES) then
+      call st%set(CPDI_ERR_INPUT, 'grid has more than 2e8 nodes; use a larger cell size')
+      return
+    end if
+    g%origin = origin
+    g%h = h
+    g%ncell = ncell
+    g%nn = ncell + 1 + 2*GRID_PAD
+    g%nnodes = g%nn(1)*g%nn(2)
+    g%gorig = origin - GRID_PAD*h
+    g%walls = walls
+    g%wall_node = [GRID_PAD + 1, GRID_PAD + 1 + ncell(1), GRID_PAD + 1, GRID_PAD + 1 + ncell(2)]
+    call grid_free(g)
+    allocate (g%m(g%nnodes), g%px(g%nnodes), g%py(g%nnodes), g%fx(g%nnodes), g%fy(g%nnodes), &
+              g%vx(g%nnodes), g%vy(g%nnodes), g%mr(g%nnodes), g%prx(g%nnodes), g%pry(g%nnodes), &
+              g%wsum(g%nnodes), stat=ierr)
+    if (ierr /= 0) then
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
+      return
+    end if
+    call grid_clear(g)
+  end subroutine grid_init
+
+  subroutine grid_free(g)
+    !! Release node arrays if allocated.
+    type(grid_t), intent(inout) :: g
+    if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%wsum)
+  end subroutine grid_free
+
+  subroutine grid_clear(g)
+    !! Zero the accumulated nodal fields.
+    type(grid_t), intent(inout) :: g
+    g%m = 0.0_wp
+    g%px = 0.0_wp
+    g%py = 0.0_wp
+    g%fx = 0.0_wp
+    g%fy = 0.0_wp
+    g%vx = 0.0_wp
+    g%vy = 0.0_wp
+    g%mr = 0.0_wp
+    g%prx = 0.0_wp
+    g%pry = 0.0_wp
+  end subroutine grid_clear
+
+  pure integer(ik) function grid_node_id(self, i, j)
+    !! Linear index of node (i, j), both 1-based and padding included.
+    class(grid_t), intent(in) :: self
+    integer(ik), intent(in) :: i, j
+    grid_node_id = i + (j - 1)*self%nn(1)
+  end function grid_node_id
+
+  pure function grid_node_x(self, k) result(x)
+    !! Position of node with linear index k.
+    class(grid_t), intent(in) :: self
+    integer(ik), intent(in) :: k
+    real(wp) :: x(2)
+    x(1) = self%gorig(1) + real(mod(k - 1, self%nn(1)), wp)*self%h
+    x(2) = self%gorig(2) + real((k - 1)/self%nn(1), wp)*self%h
+  end function grid_node_x
+
+  subroutine grid_apply_walls(g, vx, vy)
+    !! Impose the wall conditions on a nodal velocity (or momentum) field: every node on
+    !! or beyond a closed wall loses its normal component (slip) or all of it (noslip).
+    type(grid_t), intent(in) :: g
+    real(wp), intent(inout) :: vx(:), vy(:)
+    integer(ik) :: i, j, k
+
+    if (g%walls(1) /= WALL_OPEN) then
+      do j = 1, g%nn(2)
+        do i = 1, g%wall_node(1)
+          k = i + (j - 1)*g%nn(1)
+          vx(k) = 0.0_wp
+          if (g%walls(1) == WALL_NOSLIP) vy(k) = 0.0_wp
+        end do
+      end do
+    end if
+    if (g%walls(2) /= WALL_OPEN) then
+      do j = 1, g%nn(2)
+        do i = g%wall_node(2), g%nn(1)
+          k = i + (j - 1)*g%nn(1)
+          vx(k) = 0.0_wp
+          if (g%walls(2) == WALL_NOSLIP) vy(k) = 0.0_wp
+        end do
+      end do
+    end if
+    if (g%walls(3) /= WALL_OPEN) then
+      do j = 1, g%wall_node(3)
+        do i = 1, g%nn(1)
+          k = i + (j - 1)*g%nn(1)
+          vy(k) = 0.0_wp
+          if (g%walls(3) == WALL_NOSLIP) vx(k) = 0.0_wp
+        end do
+      end do
+    end if
+    if (g%walls(4) /= WALL_OPEN) then
+      do j = g%wall_node(4), g%nn(2)
+        do i = 1, g%nn(1)
+          k = i + (j - 1)*g%nn(1)
+          vy(k) = 0.0_wp
+          if (g%walls(4) == WALL_NOSLIP) vx(k) = 0.0_wp
+        end do
+      end do
+    end if
+  end subroutine grid_apply_walls
+end module cpdi_grid

@@ -1,0 +1,546 @@
+!> The simulation object and the explicit MPM step.
+module cpdi_step
+  !! One step: time step from the signal speed, interpolation weights, particle-to-grid
+  !! transfer, grid momentum update with walls and rigid nodes, grid-to-particle
+  !! transfer (USL or MUSL), deformation update (F, volume, CPDI domains), stress.
+  !! Diagnostics are accumulated inside the same loops; nothing is allocated per step.
+  use, intrinsic :: iso_fortran_env, only: int64
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, CPDI_OK, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
+                         CPDI_ERR_OUTSIDE, CPDI_ERR_JACOBIAN, CPDI_ERR_DOMAIN, CPDI_ERR_CFL
+  use cpdi_grid, only: grid_t, grid_apply_walls, WALL_OPEN
+  use cpdi_particles, only: particles_t
+  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI, &
+                        SHAPE_FAIL_OUTSIDE, SHAPE_FAIL_INVERTED
+  use cpdi_materials, only: material_t, material_stress, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
+  use cpdi_kinematics, only: det2
+  implicit none
+  private
+
+  integer(ik), parameter, public :: UPDATE_USL = 0
+  integer(ik), parameter, public :: UPDATE_MUSL = 1
+
+  integer(ik), parameter, public :: NDIAG = 12
+  !! diag: 1 t, 2 dt, 3 steps, 4 kinetic energy, 5 strain energy, 6-7 momentum,
+  !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
+  !! 12 particles clamped at walls during the last step
+  integer(ik), parameter, public :: NTIMER = 6
+  !! timers [s]: 1 shape, 2 P2G, 3 grid, 4 G2P, 5 F and domains, 6 stress
+
+  type, public :: options_t
+    integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
+    integer(ik) :: update = UPDATE_MUSL      !! UPDATE_USL or UPDATE_MUSL
+    integer(ik) :: projection = 0            !! 0 none (others: cpdi_projection)
+    integer(ik) :: kinematics = KIN_LOG      !! KIN_LOG or KIN_SMALL
+    integer(ik) :: domain_scaling = 0        !! 1: Homel et al. (2016) domain scaling
+    integer(ik) :: fixed_dt = 0              !! 1: use dt below instead of the CFL step
+    real(wp) :: cfl = 0.3_wp                 !! Courant number
+    real(wp) :: gravity(2) = 0.0_wp          !! [m/s^2]
+    real(wp) :: damping = 0.0_wp             !! Cundall local damping coefficient [-]
+    real(wp) :: dt = 0.0_wp                  !! fixed time step [s]
+    real(wp) :: flip = 1.0_wp                !! FLIP fraction of the particle velocity update
+    real(wp) :: lcrit = 0.49999_wp           !! domain-scaling limit as a fraction of h
+  end type options_t
+
+  type, public :: sim_t
+    logical :: has_grid = .false.
+    logical :: has_materials = .false.
+    logical :: has_particles = .false.
+    type(grid_t) :: g
+    type(particles_t) :: p
+    type(material_t), allocatable :: mats(:)
+    logical, allocatable :: rigid(:)         !! per material
+    logical :: any_rigid = .false.
+    type(shape_t) :: sh
+    type(options_t) :: opt
+    real(wp) :: t = 0.0_wp
+    integer(int64) :: steps = 0
+    real(wp) :: mtol = 0.0_wp                !! nodes lighter than this carry no velocity
+    real(wp) :: smax = -1.0_wp               !! max signal speed of the current state (<0: unknown)
+    real(wp) :: visc_dt = huge(1.0_wp)       !! viscous time-step limit
+    real(wp) :: diag(NDIAG) = 0.0_wp
+    real(wp) :: timers(NTIMER) = 0.0_wp
+  end type sim_t
+
+  public :: sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress
+
+contains
+
+  subroutine sim_prepare(s, st)
+    !! Check the pieces fit together and bring derived state up to date. Called before
+    !! stepping whenever grid, materials, particles or options changed.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip
+    character(len=200) :: buf
+    real(wp) :: lp(2)
+
+    if (.not. (s%has_grid .and. s%has_materials .and. s%has_particles)) then
+      call st%set(CPDI_ERR_STATE, 'set the grid, the materials and the particles before stepping')
+      return
+    end if
+    if (any(s%p%mat < 1) .or. any(s%p%mat > size(s%mats))) then
+      ip = findloc((s%p%mat < 1) .or. (s%p%mat > size(s%mats)), .true., 1)
+      write (buf, '(a,i0,a,i0,a,i0,a)') 'particle ', ip, ' has material ', s%p%mat(ip), &
+        ' but only ', size(s%mats), ' materials are defined'
+      call st%set(CPDI_ERR_INPUT, trim(buf))
+      return
+    end if
+    if (s%opt%shape == SHAPE_GIMP) then
+      do ip = 1, s%p%n
+        lp = [abs(s%p%r0(1, ip)) + abs(s%p%r0(3, ip)), abs(s%p%r0(2, ip)) + abs(s%p%r0(4, ip))]
+        if (any(lp > 0.5_wp*s%g%h*(1.0_wp + 1.0e-12_wp)) .or. any(.not. (lp > 0.0_wp))) then
+          write (buf, '(a,i0,a,2es11.3,a,es11.3,a)') 'particle ', ip, ' has GIMP half-widths ', lp, &
+            ' but uGIMP needs 0 < half-width <= h/2 = ', 0.5_wp*s%g%h, '; use 1 or more particles per cell'
+          call st%set(CPDI_ERR_INPUT, trim(buf))
+          return
+        end if
+      end do
+    end if
+    if (s%sh%kind /= s%opt%shape .or. .not. allocated(s%sh%idx) .or. size(s%sh%w, 2) /= s%p%n) then
+      call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
+      if (.not. st%ok()) return
+    end if
+    s%mtol = 1.0e-12_wp*minval(s%p%m)
+    s%diag(10) = sum(s%p%m)
+    if (s%smax < 0.0_wp) call sim_refresh_stress(s, st)
+  end subroutine sim_prepare
+
+  subroutine sim_refresh_stress(s, st)
+    !! Recompute stress, energy and signal speed from the current F (no time advance).
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    call stress_update(s, st)
+  end subroutine sim_refresh_stress
+
+  pure real(wp) function sim_stable_dt(s)
+    !! Largest stable explicit step, h / max(c + |v|), and the viscous limit.
+    type(sim_t), intent(in) :: s
+    sim_stable_dt = min(s%g%h/max(s%smax, tiny(1.0_wp)), s%visc_dt)
+  end function sim_stable_dt
+
+  subroutine tic(t0)
+    integer(int64), intent(out) :: t0
+    call system_clock(t0)
+  end subroutine tic
+
+  subroutine toc(s, slot, t0)
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: slot
+    integer(int64), intent(inout) :: t0
+    integer(int64) :: t1, rate
+    call system_clock(t1, rate)
+    s%timers(slot) = s%timers(slot) + real(t1 - t0, wp)/real(rate, wp)
+    t0 = t1
+  end subroutine toc
+
+  subroutine sim_step(s, dt_cap, st)
+    !! Advance by one explicit step of at most dt_cap.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt_cap
+    type(status_t), intent(inout) :: st
+    real(wp) :: dt, dtc
+    integer(ik) :: bad, fail
+    integer(int64) :: t0
+    character(len=300) :: buf
+
+    dtc = sim_stable_dt(s)
+    if (s%opt%fixed_dt == 1) then
+      dt = s%opt%dt
+      if (dt > dtc) then
+        write (buf, '(a,i0,a,es11.4,a,es11.4,a)') 'step ', s%steps + 1, ': fixed dt = ', dt, &
+          ' s exceeds the stable limit h/max(c+|v|) = ', dtc, ' s; reduce [solver] dt or use cfl'
+        call st%set(CPDI_ERR_CFL, trim(buf))
+        return
+      end if
+    else
+      dt = s%opt%cfl*dtc
+    end if
+    dt = min(dt, dt_cap)
+    if (.not. (dt > 0.0_wp)) then
+      call st%set(CPDI_ERR_STATE, 'time step is zero; check material moduli and densities')
+      return
+    end if
+
+    call tic(t0)
+    call shape_compute(s%g, s%p, s%sh, bad, fail)
+    call toc(s, 1, t0)
+    if (bad /= 0) then
+      if (fail == SHAPE_FAIL_INVERTED) then
+        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
+          ' at (', s%p%x(:, bad), ') is inverted (r1 x r2 <= 0); reduce cfl or refine the grid'
+        call st%set(CPDI_ERR_DOMAIN, trim(buf))
+      else
+        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': particle ', bad, ' at (', &
+          s%p%x(:, bad), ') has left the grid; enlarge [grid] size, close the wall, '// &
+          'or enable domain_scaling for stretched CPDI domains'
+        call st%set(CPDI_ERR_OUTSIDE, trim(buf))
+      end if
+      return
+    end if
+
+    call p2g(s)
+    call toc(s, 2, t0)
+    call grid_update(s, dt)
+    call toc(s, 3, t0)
+    call g2p(s, dt)
+    call toc(s, 4, t0)
+    call deformation_update(s, dt, st)
+    call toc(s, 5, t0)
+    if (.not. st%ok()) return
+    call stress_update(s, st)
+    call toc(s, 6, t0)
+    s%t = s%t + dt
+    s%steps = s%steps + 1
+    s%diag(1) = s%t
+    s%diag(2) = dt
+    s%diag(3) = real(s%steps, wp)
+  end subroutine sim_step
+
+  subroutine p2g(s)
+    !! Scatter mass, momentum and force to the nodes.
+    type(sim_t), intent(inout) :: s
+    integer(ik) :: ip, k, a, ns
+    real(wp) :: mp, mvx, mvy, vol, sxx, syy, sxy, bx, by, wk, gxk, gyk, wm
+    logical :: rig
+
+    associate (g => s%g, p => s%p, sh => s%sh)
+      g%m = 0.0_wp
+      g%px = 0.0_wp
+      g%py = 0.0_wp
+      g%fx = 0.0_wp
+      g%fy = 0.0_wp
+      if (s%any_rigid) then
+        g%mr = 0.0_wp
+        g%prx = 0.0_wp
+        g%pry = 0.0_wp
+      end if
+      ns = sh%ns
+      do ip = 1, p%n
+        mp = p%m(ip)
+        mvx = mp*p%v(1, ip)
+        mvy = mp*p%v(2, ip)
+        vol = p%vol(ip)
+        sxx = vol*p%sig(1, ip)
+        syy = vol*p%sig(2, ip)
+        sxy = vol*p%sig(3, ip)
+        bx = mp*(s%opt%gravity(1) + p%bf(1, ip))
+        by = mp*(s%opt%gravity(2) + p%bf(2, ip))
+        rig = s%rigid(p%mat(ip))
+        do a = 1, ns
+          k = sh%idx(a, ip)
+          wk = sh%w(a, ip)
+          gxk = sh%gx(a, ip)
+          gyk = sh%gy(a, ip)
+          wm = wk*mp
+          g%m(k) = g%m(k) + wm
+          g%px(k) = g%px(k) + wk*mvx
+          g%py(k) = g%py(k) + wk*mvy
+          g%fx(k) = g%fx(k) - (sxx*gxk + sxy*gyk) + wk*bx
+          g%fy(k) = g%fy(k) - (sxy*gxk + syy*gyk) + wk*by
+          if (rig) then
+            g%mr(k) = g%mr(k) + wm
+            g%prx(k) = g%prx(k) + wk*mvx
+            g%pry(k) = g%pry(k) + wk*mvy
+          end if
+        end do
+      end do
+    end associate
+  end subroutine p2g
+
+  subroutine grid_update(s, dt)
+    !! Nodal velocities at t^n (stored back in px, py) and t^{n+1} (vx, vy).
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik) :: k
+    real(wp) :: rm, v0x, v0y, fx, fy, alpha
+
+    alpha = s%opt%damping
+    associate (g => s%g)
+      do k = 1, g%nnodes
+        if (g%m(k) > s%mtol) then
+          rm = 1.0_wp/g%m(k)
+          v0x = g%px(k)*rm
+          v0y = g%py(k)*rm
+          fx = g%fx(k)
+          fy = g%fy(k)
+          if (alpha > 0.0_wp) then
+            fx = fx - alpha*abs(fx)*sign(1.0_wp, v0x)
+            fy = fy - alpha*abs(fy)*sign(1.0_wp, v0y)
+          end if
+          g%px(k) = v0x
+          g%py(k) = v0y
+          g%vx(k) = v0x + dt*fx*rm
+          g%vy(k) = v0y + dt*fy*rm
+        else
+          g%px(k) = 0.0_wp
+          g%py(k) = 0.0_wp
+          g%vx(k) = 0.0_wp
+          g%vy(k) = 0.0_wp
+        end if
+      end do
+      if (s%any_rigid) call impose_rigid(g)
+      call grid_apply_walls(g, g%px, g%py)
+      call grid_apply_walls(g, g%vx, g%vy)
+    end associate
+  end subroutine grid_update
+
+  subroutine impose_rigid(g)
+    !! Nodes touched by rigid particles move with them (clamped body).
+    type(grid_t), intent(inout) :: g
+    integer(ik) :: k
+    do k = 1, g%nnodes
+      if (g%mr(k) > 0.0_wp) then
+        g%vx(k) = g%prx(k)/g%mr(k)
+        g%vy(k) = g%pry(k)/g%mr(k)
+        g%px(k) = g%vx(k)
+        g%py(k) = g%vy(k)
+      end if
+    end do
+  end subroutine impose_rigid
+
+  subroutine g2p(s, dt)
+    !! Particle velocity (FLIP/PIC blend), position, and velocity gradient.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik) :: ip, k, a, ns, nclamp
+    real(wp) :: dvx, dvy, vnx, vny, wk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
+    real(wp) :: l11, l21, l12, l22
+    logical :: musl, closed(4)
+
+    ns = s%sh%ns
+    flip = s%opt%flip
+    musl = s%opt%update == UPDATE_MUSL
+    xmin = s%g%origin
+    xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
+    closed = s%g%walls /= WALL_OPEN
+    ke = 0.0_wp
+    mom = 0.0_wp
+    wg = 0.0_wp
+    wb = 0.0_wp
+    nclamp = 0
+    associate (g => s%g, p => s%p, sh => s%sh)
+      do ip = 1, p%n
+        mp = p%m(ip)
+        xo = p%x(:, ip)
+        if (s%rigid(p%mat(ip))) then
+          p%v(:, ip) = s%mats(p%mat(ip))%vel
+          p%x(:, ip) = xo + dt*p%v(:, ip)
+          p%L(:, ip) = 0.0_wp
+        else
+          dvx = 0.0_wp
+          dvy = 0.0_wp
+          vnx = 0.0_wp
+          vny = 0.0_wp
+          l11 = 0.0_wp
+          l21 = 0.0_wp
+          l12 = 0.0_wp
+          l22 = 0.0_wp
+          do a = 1, ns
+            k = sh%idx(a, ip)
+            wk = sh%w(a, ip)
+            vnx = vnx + wk*g%vx(k)
+            vny = vny + wk*g%vy(k)
+            dvx = dvx + wk*(g%vx(k) - g%px(k))
+            dvy = dvy + wk*(g%vy(k) - g%py(k))
+            l11 = l11 + g%vx(k)*sh%gx(a, ip)
+            l21 = l21 + g%vy(k)*sh%gx(a, ip)
+            l12 = l12 + g%vx(k)*sh%gy(a, ip)
+            l22 = l22 + g%vy(k)*sh%gy(a, ip)
+          end do
+          p%v(1, ip) = flip*(p%v(1, ip) + dvx) + (1.0_wp - flip)*vnx
+          p%v(2, ip) = flip*(p%v(2, ip) + dvy) + (1.0_wp - flip)*vny
+          p%x(1, ip) = xo(1) + dt*vnx
+          p%x(2, ip) = xo(2) + dt*vny
+          p%L(:, ip) = [l11, l21, l12, l22]
+          ! particles are held on closed walls (the grid already stops their normal motion
+          ! at the wall nodes; this removes the residual drift of wide supports)
+          if (closed(1) .and. p%x(1, ip) < xmin(1)) then
+            p%x(1, ip) = xmin(1)
+            nclamp = nclamp + 1
+          end if
+          if (closed(2) .and. p%x(1, ip) > xmax(1)) then
+            p%x(1, ip) = xmax(1)
+            nclamp = nclamp + 1
+          end if
+          if (closed(3) .and. p%x(2, ip) < xmin(2)) then
+            p%x(2, ip) = xmin(2)
+            nclamp = nclamp + 1
+          end if
+          if (closed(4) .and. p%x(2, ip) > xmax(2)) then
+            p%x(2, ip) = xmax(2)
+            nclamp = nclamp + 1
+          end if
+        end if
+        ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
+        mom = mom + mp*p%v(:, ip)
+        wg = wg + mp*dot_product(s%opt%gravity, p%x(:, ip) - xo)
+        wb = wb + mp*dot_product(p%bf(:, ip), p%x(:, ip) - xo)
+      end do
+      s%diag(4) = ke
+      s%diag(6:7) = mom
+      s%diag(8) = s%diag(8) + wg
+      s%diag(9) = s%diag(9) + wb
+      s%diag(12) = real(nclamp, wp)
+      if (musl) call musl_remap(s)
+    end associate
+  end subroutine g2p
+
+  subroutine musl_remap(s)
+    !! MUSL: map the updated particle momentum back to the grid and take the velocity
+    !! gradient from that field (Sulsky et al. 1994).
+    type(sim_t), intent(inout) :: s
+    integer(ik) :: ip, k, a, ns
+    real(wp) :: mvx, mvy, wk, l11, l21, l12, l22, rm
+    ns = s%sh%ns
+    associate (g => s%g, p => s%p, sh => s%sh)
+      g%px = 0.0_wp
+      g%py = 0.0_wp
+      do ip = 1, p%n
+        mvx = p%m(ip)*p%v(1, ip)
+        mvy = p%m(ip)*p%v(2, ip)
+        do a = 1, ns
+          k = sh%idx(a, ip)
+          wk = sh%w(a, ip)
+          g%px(k) = g%px(k) + wk*mvx
+          g%py(k) = g%py(k) + wk*mvy
+        end do
+      end do
+      do k = 1, g%nnodes
+        if (g%m(k) > s%mtol) then
+          rm = 1.0_wp/g%m(k)
+          g%vx(k) = g%px(k)*rm
+          g%vy(k) = g%py(k)*rm
+        else
+          g%vx(k) = 0.0_wp
+          g%vy(k) = 0.0_wp
+        end if
+      end do
+      if (s%any_rigid) then
+        do k = 1, g%nnodes
+          if (g%mr(k) > 0.0_wp) then
+            g%vx(k) = g%prx(k)/g%mr(k)
+            g%vy(k) = g%pry(k)/g%mr(k)
+          end if
+        end do
+      end if
+      call grid_apply_walls(g, g%vx, g%vy)
+      do ip = 1, p%n
+        if (s%rigid(p%mat(ip))) cycle
+        l11 = 0.0_wp
+        l21 = 0.0_wp
+        l12 = 0.0_wp
+        l22 = 0.0_wp
+        do a = 1, ns
+          k = sh%idx(a, ip)
+          l11 = l11 + g%vx(k)*sh%gx(a, ip)
+          l21 = l21 + g%vy(k)*sh%gx(a, ip)
+          l12 = l12 + g%vx(k)*sh%gy(a, ip)
+          l22 = l22 + g%vy(k)*sh%gy(a, ip)
+        end do
+        p%L(:, ip) = [l11, l21, l12, l22]
+      end do
+    end associate
+  end subroutine musl_remap
+
+  subroutine deformation_update(s, dt, st)
+    !! F <- (I + dt L) F, volume J V0, CPDI domains r = F r0 (optionally scaled).
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip
+    real(wp) :: a11, a21, a12, a22, f(4), j, la(2), lb(2), lc, na, nb, r(4)
+    character(len=300) :: buf
+    logical :: cpdi, scale
+
+    cpdi = s%opt%shape == SHAPE_CPDI
+    scale = s%opt%domain_scaling == 1
+    lc = s%opt%lcrit*s%g%h
+    associate (p => s%p)
+      do ip = 1, p%n
+        a11 = 1.0_wp + dt*p%L(1, ip)
+        a21 = dt*p%L(2, ip)
+        a12 = dt*p%L(3, ip)
+        a22 = 1.0_wp + dt*p%L(4, ip)
+        f = p%F(:, ip)
+        p%F(1, ip) = a11*f(1) + a12*f(2)
+        p%F(2, ip) = a21*f(1) + a22*f(2)
+        p%F(3, ip) = a11*f(3) + a12*f(4)
+        p%F(4, ip) = a21*f(3) + a22*f(4)
+        j = det2(p%F(:, ip))
+        if (.not. (j > 0.0_wp)) then
+          if (j /= j) then
+            write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN in the velocity gradient of particle ', &
+              ip, '; the run became unstable (reduce cfl, check material parameters)'
+            call st%set(CPDI_ERR_NAN, trim(buf))
+          else
+            write (buf, '(a,i0,a,i0,a,2es12.4,a,es11.3,a)') 'step ', s%steps + 1, ': particle ', ip, ' at (', &
+              p%x(:, ip), ') has det F = ', j, ' <= 0 (material inverted); reduce cfl or refine the grid'
+            call st%set(CPDI_ERR_JACOBIAN, trim(buf))
+          end if
+          return
+        end if
+        p%vol(ip) = j*p%vol0(ip)
+        p%jbar(ip) = j
+        if (cpdi) then
+          f = p%F(:, ip)
+          r(1) = f(1)*p%r0(1, ip) + f(3)*p%r0(2, ip)
+          r(2) = f(2)*p%r0(1, ip) + f(4)*p%r0(2, ip)
+          r(3) = f(1)*p%r0(3, ip) + f(3)*p%r0(4, ip)
+          r(4) = f(2)*p%r0(3, ip) + f(4)*p%r0(4, ip)
+          if (scale) then
+            la = r(1:2) + r(3:4)
+            lb = r(1:2) - r(3:4)
+            na = norm2(la)
+            nb = norm2(lb)
+            if (na > lc .or. nb > lc) then
+              if (na > lc) la = la*(lc/na)
+              if (nb > lc) lb = lb*(lc/nb)
+              r(1:2) = 0.5_wp*(la + lb)
+              r(3:4) = 0.5_wp*(la - lb)
+            end if
+          end if
+          p%r(:, ip) = r
+        end if
+      end do
+    end associate
+  end subroutine deformation_update
+
+  subroutine stress_update(s, st)
+    !! Stress and energy of every particle; signal speed for the next step.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip, im
+    real(wp) :: se, smax, c, rho, vmag, psi, sig(4), vdt
+    character(len=300) :: buf
+
+    se = 0.0_wp
+    smax = 0.0_wp
+    vdt = huge(1.0_wp)
+    associate (p => s%p)
+      do ip = 1, p%n
+        im = p%mat(ip)
+        call material_stress(s%mats(im), s%opt%kinematics, p%F(:, ip), p%L(:, ip), p%jbar(ip), sig, psi)
+        p%sig(:, ip) = sig
+        p%psi(ip) = psi*p%vol0(ip)
+        se = se + p%psi(ip)
+        rho = p%m(ip)/p%vol(ip)
+        vmag = sqrt(p%v(1, ip)**2 + p%v(2, ip)**2)
+        c = sqrt(s%mats(im)%pmod/rho) + vmag
+        if (.not. (abs(sig(1)) + abs(sig(2)) + abs(sig(3)) + c < huge(1.0_wp))) then
+          write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity '// &
+            'of particle ', ip, ' at (', p%x(:, ip), '); the run became unstable (reduce cfl, check materials)'
+          call st%set(CPDI_ERR_NAN, trim(buf))
+          return
+        end if
+        smax = max(smax, c)
+        if (s%mats(im)%model == MAT_FLUID .and. s%mats(im)%visc > 0.0_wp) &
+          vdt = min(vdt, 0.5_wp*rho*s%g%h**2/s%mats(im)%visc)
+      end do
+    end associate
+    s%diag(5) = se
+    s%smax = smax
+    s%visc_dt = vdt
+    s%diag(11) = smax
+  end subroutine stress_update
+end module cpdi_step
