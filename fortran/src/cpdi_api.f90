@@ -12,7 +12,7 @@ module cpdi_api
   use cpdi_particles, only: particles_alloc
   use cpdi_shape, only: shape_compute, shape_alloc, shape_slots, SHAPE_MPM, SHAPE_CPDI, &
                         SHAPE_FAIL_NONE, SHAPE_FAIL_INVERTED
-  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, KIN_LOG, KIN_SMALL
+  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2
   use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
@@ -154,11 +154,12 @@ contains
     call lookup(handle, s, st)
     if (st%ok() .and. nmat < 1) call st%set(CPDI_ERR_INPUT, 'at least one material is needed')
     if (st%ok()) then
-      if (allocated(s%mats)) deallocate (s%mats, s%rigid)
-      allocate (s%mats(nmat), s%rigid(nmat))
+      if (allocated(s%mats)) deallocate (s%mats, s%rigid, s%fluid)
+      allocate (s%mats(nmat), s%rigid(nmat), s%fluid(nmat))
       do m = 1, nmat
         call material_init(s%mats(m), model(m), props(:, m), m, st)
         s%rigid(m) = model(m) == MAT_RIGID
+        s%fluid(m) = model(m) == MAT_FLUID
       end do
       s%any_rigid = any(s%rigid)
       s%has_materials = st%ok()

@@ -3,6 +3,9 @@ module cpdi_step
   !! One step: time step from the signal speed, interpolation weights, particle-to-grid
   !! transfer, grid momentum update with walls and rigid nodes, grid-to-particle
   !! transfer (USL or MUSL), deformation update (F, volume, CPDI domains), stress.
+  !! Fluid particles keep an isotropic F = sqrt(J) I: a Newtonian fluid's stress depends
+  !! on J and the rate D only, and an accumulated total shear would distort (and
+  !! eventually invert) their CPDI domains without physical meaning.
   !! Diagnostics are accumulated inside the same loops; nothing is allocated per step.
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
@@ -50,6 +53,7 @@ module cpdi_step
     type(particles_t) :: p
     type(material_t), allocatable :: mats(:)
     logical, allocatable :: rigid(:)         !! per material
+    logical, allocatable :: fluid(:)         !! per material: F kept isotropic, sqrt(J) I
     logical :: any_rigid = .false.
     type(shape_t) :: sh
     type(options_t) :: opt
@@ -463,11 +467,17 @@ contains
         a12 = dt*p%L(3, ip)
         a22 = 1.0_wp + dt*p%L(4, ip)
         f = p%F(:, ip)
-        p%F(1, ip) = a11*f(1) + a12*f(2)
-        p%F(2, ip) = a21*f(1) + a22*f(2)
-        p%F(3, ip) = a11*f(3) + a12*f(4)
-        p%F(4, ip) = a21*f(3) + a22*f(4)
-        j = det2(p%F(:, ip))
+        if (s%fluid(p%mat(ip))) then
+          ! a fluid has no memory of shear: keep only its volume ratio, F = sqrt(J) I
+          j = det2(f)*(a11*a22 - a12*a21)
+          p%F(:, ip) = [sqrt(max(j, 0.0_wp)), 0.0_wp, 0.0_wp, sqrt(max(j, 0.0_wp))]
+        else
+          p%F(1, ip) = a11*f(1) + a12*f(2)
+          p%F(2, ip) = a21*f(1) + a22*f(2)
+          p%F(3, ip) = a11*f(3) + a12*f(4)
+          p%F(4, ip) = a21*f(3) + a22*f(4)
+          j = det2(p%F(:, ip))
+        end if
         if (.not. (j > 0.0_wp)) then
           if (j /= j) then
             write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN in the velocity gradient of particle ', &

@@ -1,0 +1,95 @@
+# cpdi-verify: orchestration only. Meson compiles; this file bootstraps, builds, tests
+# and verifies. On a fresh Debian machine `make test` and `make verify` do all set-up.
+SHELL := /bin/bash
+.DEFAULT_GOAL := build
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+BUILD  := build
+DEBUG_BUILD := build-debug
+EXT_SRC := $(wildcard fortran/src/*.f90) fortran/cpdi.pyf fortran/meson.build fortran/meson.options \
+           fortran/fflags.txt.in $(wildcard fortran/tests/*.f90)
+EXT_STAMP := harness/.ext-built
+APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
+CASE ?= cases/water_column.toml
+THREADS ?=
+
+.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold lint clean distclean help
+
+help:
+	@echo "make test          bootstrap, build, run the test suite (Fortran + pytest)"
+	@echo "make verify        bootstrap, build, run every check, write reports/<stamp>/"
+	@echo "make verify-quick  the same at CI resolution"
+	@echo "make bench         performance benchmark -> reports/bench/"
+	@echo "make run CASE=cases/x.toml   run one case into runs/<case>/"
+	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
+
+# ---------------------------------------------------------------- bootstrap
+sysdeps:
+	@missing=""; \
+	command -v gfortran >/dev/null 2>&1 || missing="$$missing gfortran"; \
+	command -v pkg-config >/dev/null 2>&1 || missing="$$missing pkg-config"; \
+	{ pkg-config --exists lapack 2>/dev/null || ls /usr/lib/*/liblapack.so >/dev/null 2>&1; } || missing="$$missing liblapack-dev"; \
+	{ pkg-config --exists hdf5 2>/dev/null || dpkg -s libhdf5-dev >/dev/null 2>&1; } || missing="$$missing libhdf5-dev"; \
+	$(PYTHON) -c 'import sys, venv, ensurepip; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || missing="$$missing python3-venv"; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "bootstrap: installing Debian packages:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null || exit 1; \
+	  else \
+	    echo "error: missing system packages:$$missing. Install them: sudo apt-get install$$missing (Python >= 3.11 is needed)"; \
+	    exit 1; \
+	  fi; \
+	fi
+
+$(VENV)/.installed: pyproject.toml
+	@$(MAKE) --no-print-directory sysdeps
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@echo "bootstrap: installing pinned Python packages into $(VENV)"
+	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
+	@$(PY) -m pip install -q --disable-pip-version-check \
+	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['dependencies']))")
+	@touch $@
+
+venv: $(VENV)/.installed
+bootstrap: venv
+
+# ---------------------------------------------------------------- build
+$(EXT_STAMP): $(VENV)/.installed $(EXT_SRC)
+	@test -f $(BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(BUILD) fortran --python.install-env=auto -Dpython.bytecompile=-1 >/dev/null
+	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(BUILD) | grep -vE '^\[|^ninja: (Entering|no work)' || true
+	@test -f $(BUILD)/_cpdi*.so || { echo "error: the Fortran extension did not build; see the compiler output above"; exit 1; }
+	@rm -f harness/_cpdi*.so && cp $(BUILD)/_cpdi*.so harness/
+	@touch $@
+
+build: $(EXT_STAMP)
+
+# ---------------------------------------------------------------- test / verify
+test: build
+	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson test -C $(BUILD) --print-errorlogs -q
+	@$(PY) -m pytest -q
+
+verify: build
+	@$(PY) -m harness verify
+
+verify-quick: build
+	@$(PY) -m harness verify --quick
+
+bench: build
+	@$(PY) -m harness bench
+
+run: build
+	@$(PY) -m harness run $(CASE)
+
+regen-gold: build
+	@$(PY) -m harness verify --regen-gold
+
+lint: venv
+	@$(VENV)/bin/ruff check harness tests
+
+clean:
+	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so $(EXT_STAMP) runs
+
+distclean: clean
+	rm -rf $(VENV) reports/2* reports/latest reports/bench

@@ -1,0 +1,422 @@
+"""Case files: load a TOML case, validate every key, fill defaults.
+
+A case is data. Each key has a type, a range, a unit and a one-line doc; the same table
+drives validation, the defaults and ``cases/README.md`` (see :func:`schema_markdown`).
+An unknown key, a wrong type or a non-physical value raises :class:`CaseError` naming
+the key, the value and a fix.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+class CaseError(ValueError):
+    """A case file is malformed; the message names the key and the fix."""
+
+
+# --------------------------------------------------------------------------- schema
+@dataclass(frozen=True)
+class Key:
+    kind: str  # "str", "float", "int", "bool", "vec2", "choice", "table", "any"
+    doc: str
+    unit: str = ""
+    default: Any = None
+    required: bool = False
+    choices: tuple = ()
+    check: Callable[[Any], str | None] | None = None  # returns an error text or None
+    sub: dict[str, Key] | None = None  # for "table"
+
+
+def positive(v):
+    return None if v > 0 else "must be positive"
+
+
+def nonneg(v):
+    return None if v >= 0 else "must be zero or positive"
+
+
+def in_range(lo, hi, lo_open=False, hi_open=False):
+    def chk(v):
+        ok_lo = v > lo if lo_open else v >= lo
+        ok_hi = v < hi if hi_open else v <= hi
+        if ok_lo and ok_hi:
+            return None
+        return f"must lie in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+    return chk
+
+
+def positive_vec(v):
+    return None if all(x > 0 for x in v) else "both components must be positive"
+
+
+WALL = ("slip", "noslip", "open")
+
+GEOMETRY = {
+    "type": Key("choice", "shape of the body", choices=("rectangle", "annulus"), required=True),
+    "min": Key("vec2", "lower-left corner (rectangle)", "m"),
+    "max": Key("vec2", "upper-right corner (rectangle)", "m"),
+    "center": Key("vec2", "centre (annulus)", "m"),
+    "r_inner": Key("float", "inner radius (annulus)", "m", check=nonneg),
+    "r_outer": Key("float", "outer radius (annulus)", "m", check=positive),
+}
+
+PROBE = {
+    "kind": Key("choice", "what to measure (defaults to the probe's name)",
+                choices=("front_x", "column_height", "displacement_x", "displacement_y")),
+    "material": Key("str", "material whose particles are probed (default: all)"),
+    "point": Key("vec2", "initial position of the probed point (displacement probes)", "m"),
+    "layer": Key("float", "thickness of the floor / wall layer (default: one cell)", "m", check=positive),
+    "min_count": Key("int", "front: particles needed within 2 spacings behind the front", default=3,
+                     check=lambda v: None if v >= 1 else "must be at least 1"),
+}
+
+SCHEMA: dict[str, Key] = {
+    "case": Key("table", "identity of the case", required=True, sub={
+        "name": Key("str", "short name, used for the run directory", required=True),
+        "requirement": Key("str", "one-line requirement the case verifies", required=True),
+        "description": Key("str", "free text", default=""),
+    }),
+    "grid": Key("table", "background grid", required=True, sub={
+        "origin": Key("vec2", "lower-left corner of the domain", "m", default=[0.0, 0.0]),
+        "size": Key("vec2", "domain width and height (whole cells)", "m", required=True, check=positive_vec),
+        "cell": Key("float", "square cell size h", "m", required=True, check=positive),
+        "walls": Key("table", "wall kind per side: slip, noslip or open", sub={
+            side: Key("choice", f"{side} wall", choices=WALL, default="slip")
+            for side in ("left", "right", "bottom", "top")}),
+    }),
+    "solver": Key("table", "time integration and discretisation", required=True, sub={
+        "shape": Key("choice", "interpolation", choices=("mpm", "gimp", "cpdi"), default="cpdi"),
+        "update": Key("choice", "update scheme", choices=("usl", "musl"), default="musl"),
+        "projection": Key("choice", "volumetric anti-locking projection (none in this build)",
+                          choices=("none",), default="none"),
+        "kinematics": Key("choice", "log: finite strain (Hencky); small: sym(F) - I",
+                          choices=("log", "small"), default="log"),
+        "domain_scaling": Key("bool", "Homel et al. (2016) CPDI domain scaling", default=False),
+        "cfl": Key("float", "Courant number of the explicit step", default=0.3,
+                   check=in_range(0.0, 1.0, lo_open=True)),
+        "dt": Key("float", "fixed time step (overrides cfl; refused if above the stable limit)", "s",
+                  check=positive),
+        "t_end": Key("float", "simulated end time", "s", required=True, check=positive),
+        "gravity": Key("vec2", "gravitational acceleration", "m/s^2", default=[0.0, -9.81]),
+        "output_every": Key("float", "interval between snapshots", "s", check=positive),
+        "series_every": Key("float", "interval between series.csv rows (default output_every/10)", "s",
+                            check=positive),
+        "damping": Key("float", "Cundall local damping coefficient (0 = none)", default=0.0,
+                       check=in_range(0.0, 1.0, hi_open=True)),
+        "flip": Key("float", "FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)", default=1.0,
+                    check=in_range(0.0, 1.0)),
+        "max_steps": Key("int", "abort after this many steps", default=50_000_000, check=positive),
+    }),
+    "materials": Key("list", "materials, referenced by name from bodies", required=True),
+    "bodies": Key("list", "bodies filled with particles", required=True),
+    "contact": Key("table", "multi-velocity-field frictional contact (not in this build)", sub={
+        "enabled": Key("bool", "use Bardenhagen contact between bodies", default=False,
+                       check=lambda v: None if v is False else "contact is not available in this build"),
+        "friction": Key("float", "Coulomb friction coefficient", default=0.0, check=nonneg),
+    }),
+    "probes": Key("table", "case-specific outputs written to series.csv (name = {kind, ...})"),
+}
+
+MATERIAL = {
+    "name": Key("str", "name used by bodies", required=True),
+    "model": Key("choice", "constitutive model", required=True,
+                 choices=("hencky", "neo_hookean", "newtonian_fluid", "rigid")),
+    "density": Key("float", "reference density", "kg/m^3", required=True, check=positive),
+    "youngs_modulus": Key("float", "Young's modulus (hencky, neo_hookean)", "Pa", check=positive),
+    "poisson_ratio": Key("float", "Poisson's ratio (hencky, neo_hookean)",
+                         check=in_range(-1.0, 0.5, lo_open=True, hi_open=True)),
+    "bulk_modulus": Key("float", "bulk modulus K (newtonian_fluid)", "Pa", check=positive),
+    "viscosity": Key("float", "dynamic viscosity (newtonian_fluid)", "Pa s", default=0.0, check=nonneg),
+    "velocity": Key("vec2", "prescribed velocity (rigid)", "m/s", default=[0.0, 0.0]),
+}
+MODEL_NEEDS = {
+    "hencky": ("youngs_modulus", "poisson_ratio"),
+    "neo_hookean": ("youngs_modulus", "poisson_ratio"),
+    "newtonian_fluid": ("bulk_modulus",),
+    "rigid": (),
+}
+
+BODY = {
+    "name": Key("str", "label", default=""),
+    "material": Key("str", "name of a [[materials]] entry", required=True),
+    "geometry": Key("table", "region filled with particles", required=True, sub=GEOMETRY),
+    "ppc": Key("int", "particles per cell per direction", default=2,
+               check=lambda v: None if 1 <= v <= 8 else "must be between 1 and 8"),
+    "velocity": Key("vec2", "initial velocity", "m/s", default=[0.0, 0.0]),
+}
+
+
+# --------------------------------------------------------------------------- validation
+def _type_name(v) -> str:
+    return type(v).__name__
+
+
+def _suggest(key: str, allowed) -> str:
+    close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+    if close:
+        return f"; did you mean '{close[0]}'?"
+    return f"; allowed keys: {', '.join(sorted(allowed))}"
+
+
+def _coerce(path: str, spec: Key, value):
+    kind = spec.kind
+    if kind == "str":
+        if not isinstance(value, str):
+            raise CaseError(f"{path} = {value!r} must be a string")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise CaseError(f"{path} = {value!r} must be true or false")
+        return value
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise CaseError(f"{path} = {value!r} must be a whole number")
+        return value
+    if kind == "float":
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CaseError(f"{path} = {value!r} must be a number, got {_type_name(value)}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise CaseError(f"{path} = {value!r} must be finite")
+        return value
+    if kind == "vec2":
+        if (not isinstance(value, list) or len(value) != 2
+                or any(isinstance(x, bool) or not isinstance(x, int | float) for x in value)):
+            raise CaseError(f"{path} = {value!r} must be a list of two numbers, e.g. [0.0, 1.0]")
+        value = [float(x) for x in value]
+        if not all(math.isfinite(x) for x in value):
+            raise CaseError(f"{path} = {value!r} must be finite")
+        return value
+    if kind == "choice":
+        if not isinstance(value, str) or value not in spec.choices:
+            hint = difflib.get_close_matches(str(value), spec.choices, n=1, cutoff=0.5)
+            extra = f"; did you mean '{hint[0]}'?" if hint else ""
+            raise CaseError(f"{path} = {value!r} is not one of {', '.join(spec.choices)}{extra}")
+        return value
+    return value
+
+
+def _validate_table(path: str, schema: dict[str, Key], data) -> dict[str, Any]:
+    if not isinstance(data, dict):
+        raise CaseError(f"[{path}] must be a table, got {_type_name(data)}")
+    for key in data:
+        if key not in schema:
+            where = f"{path}.{key}" if path else key
+            raise CaseError(f"unknown key '{where}'{_suggest(key, schema)}")
+    out: dict[str, Any] = {}
+    for key, spec in schema.items():
+        where = f"{path}.{key}" if path else key
+        if key not in data:
+            if spec.required:
+                raise CaseError(f"missing required key '{where}' ({spec.doc}{', ' + spec.unit if spec.unit else ''})")
+            if spec.kind == "table" and spec.sub is not None:
+                out[key] = _validate_table(where, spec.sub, {})
+            elif spec.default is not None:
+                out[key] = copy.deepcopy(spec.default)
+            continue
+        value = data[key]
+        if spec.kind == "table" and spec.sub is not None:
+            out[key] = _validate_table(where, spec.sub, value)
+        elif spec.kind in ("table", "list"):
+            out[key] = value
+        else:
+            out[key] = _coerce(where, spec, value)
+            if spec.check is not None:
+                problem = spec.check(out[key])
+                if problem:
+                    raise CaseError(f"{where} = {value!r} {problem}"
+                                    + (f" ({spec.unit})" if spec.unit else ""))
+    return out
+
+
+def _validate_list(path: str, schema: dict[str, Key], data) -> list[dict[str, Any]]:
+    if not isinstance(data, list) or not data or not all(isinstance(x, dict) for x in data):
+        raise CaseError(f"[[{path}]] must be a non-empty array of tables")
+    return [_validate_table(f"{path}[{i}]", schema, item) for i, item in enumerate(data)]
+
+
+def _validate_geometry(where: str, geo: dict, grid: dict) -> None:
+    lo = grid["origin"]
+    hi = [lo[0] + grid["size"][0], lo[1] + grid["size"][1]]
+    if geo["type"] == "rectangle":
+        for k in ("min", "max"):
+            if k not in geo:
+                raise CaseError(f"missing required key '{where}.{k}' for a rectangle (m)")
+        if not (geo["min"][0] < geo["max"][0] and geo["min"][1] < geo["max"][1]):
+            raise CaseError(f"{where}: min {geo['min']} must lie below and left of max {geo['max']}")
+        bmin, bmax = geo["min"], geo["max"]
+    else:
+        for k in ("center", "r_outer"):
+            if k not in geo:
+                raise CaseError(f"missing required key '{where}.{k}' for an annulus")
+        geo.setdefault("r_inner", 0.0)
+        if not geo["r_inner"] < geo["r_outer"]:
+            raise CaseError(f"{where}: r_inner {geo['r_inner']} must be smaller than r_outer {geo['r_outer']}")
+        c, r = geo["center"], geo["r_outer"]
+        bmin, bmax = [c[0] - r, c[1] - r], [c[0] + r, c[1] + r]
+    tol = 1e-9 * max(grid["size"])
+    if bmin[0] < lo[0] - tol or bmin[1] < lo[1] - tol or bmax[0] > hi[0] + tol or bmax[1] > hi[1] + tol:
+        raise CaseError(f"{where} spans {bmin}-{bmax}, outside the grid {lo}-{hi}; enlarge [grid] size or move it")
+
+
+def validate(raw: dict[str, Any]) -> dict[str, Any]:
+    """Validate a parsed case and return it with every default filled in."""
+    data = _validate_table("", SCHEMA, raw)
+    grid = data["grid"]
+    h = grid["cell"]
+    for i in range(2):
+        n = grid["size"][i] / h
+        if abs(n - round(n)) > 1e-6 * max(1.0, n):
+            raise CaseError(f"grid.size[{i}] = {grid['size'][i]} is not a whole number of cells of {h} m; "
+                            f"use {round(n) * h:.6g} or change grid.cell")
+    solver = data["solver"]
+    solver.setdefault("output_every", solver["t_end"] / 10.0)
+    solver.setdefault("series_every", solver["output_every"] / 10.0)
+    if solver["output_every"] > solver["t_end"]:
+        raise CaseError(f"solver.output_every = {solver['output_every']} exceeds t_end = {solver['t_end']} s")
+
+    mats = _validate_list("materials", MATERIAL, data["materials"])
+    names = [m["name"] for m in mats]
+    if len(set(names)) != len(names):
+        raise CaseError(f"material names must be unique, got {names}")
+    for i, m in enumerate(mats):
+        for need in MODEL_NEEDS[m["model"]]:
+            if need not in m:
+                raise CaseError(f"materials[{i}] ('{m['name']}', model {m['model']}) needs '{need}' "
+                                f"({MATERIAL[need].doc}, {MATERIAL[need].unit or '-'})")
+    data["materials"] = mats
+
+    bodies = _validate_list("bodies", BODY, data["bodies"])
+    for i, b in enumerate(bodies):
+        if b["material"] not in names:
+            raise CaseError(f"bodies[{i}].material = '{b['material']}' is not a defined material"
+                            f"{_suggest(b['material'], names)}")
+        _validate_geometry(f"bodies[{i}].geometry", b["geometry"], grid)
+        if solver["shape"] == "gimp" and b["ppc"] < 1:
+            raise CaseError(f"bodies[{i}].ppc must be at least 1 for gimp")
+    data["bodies"] = bodies
+
+    probes = {}
+    for name, spec in (data.get("probes") or {}).items():
+        p = _validate_table(f"probes.{name}", PROBE, spec if isinstance(spec, dict) else {"kind": spec})
+        p.setdefault("kind", name)
+        if p["kind"] not in PROBE["kind"].choices:
+            raise CaseError(f"probes.{name}: kind '{p['kind']}' is unknown; use one of "
+                            f"{', '.join(PROBE['kind'].choices)}")
+        if p["kind"].startswith("displacement") and "point" not in p:
+            raise CaseError(f"probes.{name} needs 'point' (initial position of the probed point, m)")
+        if "material" in p and p["material"] not in names:
+            raise CaseError(f"probes.{name}.material = '{p['material']}' is not a defined material")
+        probes[name] = p
+    data["probes"] = probes
+    return data
+
+
+# --------------------------------------------------------------------------- loading
+@dataclass
+class Case:
+    """A validated case: ``data`` holds every section with defaults filled in."""
+
+    data: dict[str, Any]
+    path: Path | None = None
+    overrides: list[str] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return self.data["case"]["name"]
+
+    def __getitem__(self, key: str) -> Any:
+        return self.data[key]
+
+
+def parse_value(text: str) -> Any:
+    """Parse the value of a ``--set key=value`` override as TOML, falling back to a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(raw: dict[str, Any], assignment: str) -> None:
+    """Apply ``section.key=value`` (``materials.0.density=1100`` indexes arrays) to a raw case."""
+    if "=" not in assignment:
+        raise CaseError(f"--set {assignment!r} must look like section.key=value")
+    path, text = assignment.split("=", 1)
+    parts = [p for p in path.strip().split(".") if p]
+    if len(parts) < 2:
+        raise CaseError(f"--set {assignment!r}: name a section and a key, e.g. solver.cfl=0.2")
+    node: Any = raw
+    for i, part in enumerate(parts[:-1]):
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise CaseError(f"--set {assignment!r}: '{part}' is not an index of {'.'.join(parts[:i])}")
+            node = node[int(part)]
+        else:
+            if part not in node:
+                top = SCHEMA if i == 0 else {}
+                if i == 0 and part not in SCHEMA:
+                    raise CaseError(f"--set {assignment!r}: unknown section '{part}'{_suggest(part, top)}")
+                node[part] = {}
+            node = node[part]
+    last = parts[-1]
+    if isinstance(node, list):
+        raise CaseError(f"--set {assignment!r}: index the array, e.g. materials.0.density=1100")
+    node[last] = parse_value(text.strip())
+
+
+def load(path: str | Path, overrides: list[str] | None = None) -> Case:
+    """Read, override and validate a case file."""
+    p = Path(path)
+    if not p.is_file():
+        raise CaseError(f"case file {p} does not exist")
+    try:
+        raw = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(f"{p}: TOML syntax error: {exc}") from None
+    except UnicodeDecodeError:
+        raise CaseError(f"{p}: not a UTF-8 text file") from None
+    for item in overrides or []:
+        apply_override(raw, item)
+    try:
+        data = validate(raw)
+    except CaseError as exc:
+        raise CaseError(f"{p}: {exc}") from None
+    return Case(data=data, path=p, overrides=list(overrides or []))
+
+
+def from_dict(raw: dict[str, Any]) -> Case:
+    """Validate an in-memory case (used by checks that build cases programmatically)."""
+    return Case(data=validate(copy.deepcopy(raw)))
+
+
+def schema_markdown() -> str:
+    """The reference table of every key, for cases/README.md."""
+    lines = []
+
+    def emit(title: str, schema: dict[str, Key]):
+        lines.append(f"\n### {title}\n")
+        lines.append("| key | type | unit | default | meaning |")
+        lines.append("|---|---|---|---|---|")
+        for k, s in schema.items():
+            kind = s.kind if s.kind != "choice" else " \\| ".join(s.choices)
+            default = "required" if s.required else ("" if s.default is None else repr(s.default))
+            lines.append(f"| `{k}` | {kind} | {s.unit} | {default} | {s.doc} |")
+
+    for sec, spec in SCHEMA.items():
+        if spec.sub:
+            emit(f"[{sec}]", spec.sub)
+            if sec == "grid":
+                emit("[grid.walls]", spec.sub["walls"].sub)
+    emit("[[materials]]", MATERIAL)
+    emit("[[bodies]]", BODY)
+    emit("[bodies.geometry]", GEOMETRY)
+    emit("[probes.NAME]", PROBE)
+    return "\n".join(lines) + "\n"

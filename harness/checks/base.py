@@ -1,0 +1,102 @@
+"""Shared result types for verification checks.
+
+Every check module in ``harness.checks`` exposes ``NAME``, ``REQUIREMENT`` and
+``run(ctx) -> CheckResult``. The report writer and the gate only ever see these types.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+@dataclass
+class Gate:
+    """One acceptance bound on one metric.
+
+    kind: ``"max"`` (value <= bound), ``"min"`` (value >= bound) or ``"gold"``
+    (value within tolerance of the gold baseline; ``bound`` holds the gold value).
+    """
+
+    metric: str
+    value: float
+    bound: float
+    kind: str
+    passed: bool
+    note: str = ""
+
+    @classmethod
+    def at_most(cls, metric: str, value: float, bound: float, note: str = "") -> Gate:
+        return cls(metric, float(value), float(bound), "max", bool(value <= bound), note)
+
+    @classmethod
+    def at_least(cls, metric: str, value: float, bound: float, note: str = "") -> Gate:
+        return cls(metric, float(value), float(bound), "min", bool(value >= bound), note)
+
+
+@dataclass
+class CheckResult:
+    """Outcome of one check: metrics, gates, figures, tables and a verdict."""
+
+    name: str
+    requirement: str
+    metrics: dict[str, float] = field(default_factory=dict)
+    gates: list[Gate] = field(default_factory=list)
+    figures: list[str] = field(default_factory=list)  # file names under <report>/figures/
+    tables: list[str] = field(default_factory=list)  # Markdown tables
+    notes: list[str] = field(default_factory=list)  # free Markdown paragraphs
+    error: str | None = None  # set when the check could not run to the end
+    wall_s: float = 0.0
+
+    @property
+    def passed(self) -> bool:
+        return self.error is None and all(g.passed for g in self.gates)
+
+    @property
+    def verdict(self) -> str:
+        if self.error is not None:
+            return f"FAILED to run: {self.error}"
+        failed = [g for g in self.gates if not g.passed]
+        if not failed:
+            return f"passed ({len(self.gates)} gates)"
+        names = ", ".join(f"{g.metric}={g.value:.4g} ({g.kind} {g.bound:.4g})" for g in failed)
+        return f"FAILED: {names}"
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["passed"] = self.passed
+        d["verdict"] = self.verdict
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CheckResult:
+        gates = [Gate(**{k: g[k] for k in ("metric", "value", "bound", "kind", "passed", "note") if k in g})
+                 for g in d.get("gates", [])]
+        return cls(
+            name=d["name"],
+            requirement=d.get("requirement", ""),
+            metrics=dict(d.get("metrics", {})),
+            gates=gates,
+            figures=list(d.get("figures", [])),
+            tables=list(d.get("tables", [])),
+            notes=list(d.get("notes", [])),
+            error=d.get("error"),
+            wall_s=float(d.get("wall_s", 0.0)),
+        )
+
+
+@dataclass
+class CheckContext:
+    """What a check gets to run: where to write figures, whether this is the quick tier."""
+
+    out_dir: Path  # the report directory; figures go to out_dir / "figures"
+    quick: bool
+    runs_dir: Path  # scratch directory for the check's simulation runs
+    progress: bool = True
+
+    @property
+    def fig_dir(self) -> Path:
+        p = self.out_dir / "figures"
+        p.mkdir(parents=True, exist_ok=True)
+        return p

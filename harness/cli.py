@@ -1,0 +1,101 @@
+"""Command line: ``python -m harness {run,verify,report,bench}``.
+
+Errors print one line naming the problem and the fix, and exit non-zero:
+1 = a run or check failed, 2 = bad input (case file, arguments), 130 = interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from harness.cases import CaseError
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _err(msg: str) -> None:
+    print(f"error: {msg}", file=sys.stderr)
+
+
+def cmd_run(args) -> int:
+    from harness import cases, runner
+
+    case = cases.load(args.case, args.set)
+    out = Path(args.out) if args.out else REPO / "runs" / case.name
+    try:
+        res = runner.run(case, out, progress=not args.no_progress)
+    except runner.RunFailed as exc:
+        _err(f"{exc}\n       partial outputs kept in {out}/ (summary.json has status 'failed')")
+        return 1
+    s = res.summary
+    print(f"{case.name}: completed t = {s['simulated_time']:.4g} s in {s['steps']} steps, "
+          f"{s['wall_s']:.2f} s wall, {s['particles']} particles, "
+          f"{s['particle_updates_per_s'] / 1e6:.2f} M particle-updates/s -> {out}/")
+    return 0
+
+
+def cmd_verify(args) -> int:
+    from harness import verify
+
+    return verify.main(quick=args.quick, only=args.only, out=Path(args.out) if args.out else None,
+                       progress=not args.no_progress)
+
+
+def cmd_report(args) -> int:
+    from harness import report
+
+    d = Path(args.dir)
+    if not (d / "results.json").is_file():
+        _err(f"{d} holds no results.json; give a directory written by `python -m harness verify`")
+        return 2
+    report.rerender(d)
+    print(f"re-rendered {d}/index.html and {d}/report.md")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from harness import bench
+
+    return bench.main(quick=args.quick)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m harness", description="cpdi-verify harness")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run one case")
+    r.add_argument("case", help="case file (TOML)")
+    r.add_argument("--out", help="output directory (default runs/<case name>)")
+    r.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a case value, e.g. --set solver.cfl=0.2 (repeatable)")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_run)
+    v = sub.add_parser("verify", help="run the verification checks and write a report")
+    v.add_argument("--quick", action="store_true", help="CI resolution")
+    v.add_argument("--only", nargs="+", metavar="NAME", help="run only these checks")
+    v.add_argument("--out", help="report directory (default reports/<UTC stamp>)")
+    v.add_argument("--no-progress", action="store_true")
+    v.set_defaults(func=cmd_verify)
+    rep = sub.add_parser("report", help="re-render a report from stored data")
+    rep.add_argument("dir", help="report directory")
+    rep.set_defaults(func=cmd_report)
+    b = sub.add_parser("bench", help="performance benchmark")
+    b.add_argument("--quick", action="store_true")
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except CaseError as exc:
+        _err(str(exc))
+        return 2
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return 130
+    except ImportError as exc:
+        _err(str(exc))
+        return 2

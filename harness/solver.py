@@ -1,0 +1,272 @@
+"""Python face of the Fortran solver: numpy arrays in, numpy arrays out.
+
+Every Fortran API routine returns ``(..., ierr, msg)``; a non-zero ``ierr`` becomes a
+:class:`CpdiError` carrying the Fortran message, so the interpreter always survives a
+bad input or a failed step. Arrays are handed over as Fortran-ordered float64 views:
+particle arrays are ``(n, 2)`` / ``(n, 4)`` in Python and ``(2, n)`` / ``(4, n)`` in
+Fortran, and the transposes cost nothing.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+SHAPES = {"mpm": 0, "gimp": 1, "cpdi": 2}
+UPDATES = {"usl": 0, "musl": 1}
+WALLS = {"open": 0, "slip": 1, "noslip": 2}
+WALL_SIDES = ("left", "right", "bottom", "top")
+MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4}
+KINEMATICS = {"log": 0, "small": 1}
+PROJECTIONS = {"none": 0}
+SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
+DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
+              "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps")
+TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress")
+ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
+               7: "cfl", 8: "lapack", 9: "handle", 10: "alloc"}
+
+
+class CpdiError(RuntimeError):
+    """An error reported by the Fortran solver (``ierr != 0``)."""
+
+    def __init__(self, code: int, message: str, routine: str = ""):
+        self.code = int(code)
+        self.kind = ERROR_NAMES.get(self.code, "unknown")
+        self.routine = routine
+        super().__init__(message)
+
+
+def _load_extension():
+    try:
+        return importlib.import_module("harness._cpdi").cpdi_api
+    except ImportError as exc:  # pragma: no cover - exercised only without a build
+        raise ImportError(
+            "the Fortran extension harness/_cpdi*.so is not built; run `make build` (or `make test`)"
+        ) from exc
+
+
+_API = None
+
+
+def api():
+    """The f2py module object (loaded on first use)."""
+    global _API
+    if _API is None:
+        _API = _load_extension()
+    return _API
+
+
+def _call(name: str, *args):
+    out = getattr(api(), name)(*args)
+    *values, ierr, msg = out
+    if ierr != 0:
+        text = msg.decode("ascii", "replace").strip() if isinstance(msg, bytes) else str(msg).strip()
+        raise CpdiError(ierr, text or f"{name} failed with code {ierr}", name)
+    if len(values) == 1:
+        return values[0]
+    return tuple(values)
+
+
+def _f64(a, shape: tuple[int, ...] | None = None, what: str = "array") -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    if shape is not None and arr.shape != shape:
+        raise CpdiError(1, f"{what} has shape {arr.shape}, expected {shape}")
+    return arr
+
+
+def _particle_array(a, n: int, width: int, what: str) -> np.ndarray:
+    arr = _f64(a, what=what)
+    if arr.ndim == 1 and width == 1:
+        arr = arr.reshape(n) if arr.size == n else arr
+    if arr.shape != ((n,) if width == 1 else (n, width)):
+        want = (n,) if width == 1 else (n, width)
+        raise CpdiError(1, f"{what} has shape {arr.shape}, expected {want}")
+    return np.asfortranarray(arr.T)
+
+
+@dataclass(frozen=True)
+class GridInfo:
+    origin: np.ndarray  # position of node 0 (padding included)
+    h: float
+    nn: tuple[int, int]
+    pad: int
+
+    def node_xy(self, idx: np.ndarray) -> np.ndarray:
+        """Positions of 0-based node indices, shape idx.shape + (2,)."""
+        idx = np.asarray(idx)
+        i = idx % self.nn[0]
+        j = idx // self.nn[0]
+        return np.stack([self.origin[0] + i * self.h, self.origin[1] + j * self.h], axis=-1)
+
+
+class Simulation:
+    """One solver instance. Build it with the set_* methods, then :meth:`advance`."""
+
+    def __init__(self):
+        self._handle = _call("cpdi_new")
+        self._n = 0
+        self._shape = "cpdi"
+
+    # -- life cycle ---------------------------------------------------------------
+    def close(self) -> None:
+        if getattr(self, "_handle", 0):
+            try:
+                _call("cpdi_free", self._handle)
+            finally:
+                self._handle = 0
+
+    def __enter__(self) -> Simulation:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    @property
+    def n(self) -> int:
+        return self._n
+
+    # -- set-up -------------------------------------------------------------------
+    def set_grid(self, origin: Sequence[float], ncell: Sequence[int], h: float,
+                 walls: Mapping[str, str] | Sequence[str] = ("slip", "slip", "slip", "slip")) -> None:
+        """Background grid: origin [m], cells per direction, cell size h [m], walls by side."""
+        if isinstance(walls, Mapping):
+            kinds = [walls.get(side, "open") for side in WALL_SIDES]
+        else:
+            kinds = list(walls)
+        try:
+            codes = [WALLS[k] for k in kinds]
+        except KeyError as exc:
+            raise CpdiError(1, f"unknown wall kind {exc.args[0]!r}; use one of {sorted(WALLS)}") from None
+        if len(codes) != 4:
+            raise CpdiError(1, "walls needs four entries: left, right, bottom, top")
+        nc = np.asarray(ncell)
+        if nc.shape != (2,) or not np.all(np.isfinite(nc)) or np.any(nc != np.round(nc)):
+            raise CpdiError(1, f"ncell must be two whole numbers, got {ncell!r}")
+        _call("cpdi_set_grid", self._handle, _f64(origin, (2,), "origin"), nc.astype(np.int32),
+              float(h), np.asarray(codes, dtype=np.int32))
+
+    def set_materials(self, materials: Sequence[Mapping]) -> None:
+        """Materials as dicts: model plus density, youngs_modulus, poisson_ratio,
+        bulk_modulus, viscosity, velocity (as the model needs)."""
+        if len(materials) == 0:
+            raise CpdiError(1, "at least one material is needed")
+        models = np.zeros(len(materials), dtype=np.int32)
+        props = np.zeros((7, len(materials)), order="F")
+        for m, mat in enumerate(materials):
+            try:
+                models[m] = MODELS[mat["model"]]
+            except KeyError:
+                raise CpdiError(1, f"material {m}: unknown model {mat.get('model')!r}; "
+                                   f"use one of {sorted(MODELS)}") from None
+            vel = mat.get("velocity", (0.0, 0.0))
+            props[:, m] = [mat.get("density", 0.0), mat.get("youngs_modulus", 0.0),
+                           mat.get("poisson_ratio", 0.0), mat.get("bulk_modulus", 0.0),
+                           mat.get("viscosity", 0.0), vel[0], vel[1]]
+        _call("cpdi_set_materials", self._handle, models, props)
+
+    def set_particles(self, x, v, mass, vol, r, mat) -> None:
+        """Particles: x, v (n,2); mass, vol (n,); domain vectors r (n,4) = [r1x, r1y, r2x, r2y];
+        material index mat (n,) 0-based."""
+        x = np.asarray(x, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != 2 or x.shape[0] < 1:
+            raise CpdiError(1, f"particle positions must have shape (n, 2) with n >= 1, got {x.shape}")
+        n = x.shape[0]
+        mat = np.asarray(mat)
+        if mat.shape != (n,):
+            raise CpdiError(1, f"mat has shape {mat.shape}, expected ({n},)")
+        if mat.size and (not np.all(np.isfinite(mat)) or np.any(mat != np.round(mat))):
+            raise CpdiError(1, "material indices must be whole numbers")
+        _call("cpdi_set_particles", self._handle,
+              _particle_array(x, n, 2, "x"), _particle_array(v, n, 2, "v"),
+              _particle_array(mass, n, 1, "mass"), _particle_array(vol, n, 1, "vol"),
+              _particle_array(r, n, 4, "r"), (mat.astype(np.int64) + 1).astype(np.int32))
+        self._n = n
+
+    def set_options(self, *, shape: str = "cpdi", update: str = "musl", projection: str = "none",
+                    kinematics: str = "log", domain_scaling: bool = False, dt: float | None = None,
+                    cfl: float = 0.3, gravity: Sequence[float] = (0.0, 0.0), damping: float = 0.0,
+                    flip: float = 1.0, lcrit: float = 0.49999) -> None:
+        """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it."""
+        table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
+                 ("kinematics", kinematics, KINEMATICS))
+        codes = []
+        for key, value, allowed in table:
+            if value not in allowed:
+                raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
+            codes.append(allowed[value])
+        iopt = np.array(codes + [int(bool(domain_scaling)), int(dt is not None)], dtype=np.int32)
+        g = _f64(gravity, (2,), "gravity")
+        ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit], dtype=np.float64)
+        _call("cpdi_set_options", self._handle, iopt, ropt)
+        self._shape = shape
+
+    def set_body_force(self, b) -> None:
+        """External body force per unit mass (n,2) [m/s^2], added to gravity until replaced."""
+        _call("cpdi_set_body_force", self._handle, _particle_array(b, self._n, 2, "body force"))
+
+    def set_state(self, v, F, t: float) -> None:
+        """Overwrite velocities (n,2), deformation gradients (n,4) [F11, F21, F12, F22] and the clock."""
+        _call("cpdi_set_state", self._handle, _particle_array(v, self._n, 2, "v"),
+              _particle_array(F, self._n, 4, "F"), float(t))
+
+    # -- stepping -----------------------------------------------------------------
+    def advance(self, t_end: float, max_steps: int = 2**31 - 1) -> tuple[int, float]:
+        """Step until time t_end (the last step lands on it) or max_steps; returns (steps, t)."""
+        steps, t = _call("cpdi_advance", self._handle, float(t_end), int(max_steps))
+        return int(steps), float(t)
+
+    def stable_dt(self) -> float:
+        """h / max(c + |v|) of the current state, before the CFL factor [s]."""
+        return float(_call("cpdi_stable_dt", self._handle))
+
+    # -- queries ------------------------------------------------------------------
+    def state(self) -> dict[str, np.ndarray]:
+        """Particle state: x, v (n,2); F, sigma, r (n,4); vol (n,)."""
+        x, v, F, sig, vol, r = _call("cpdi_get_state", self._handle, self._n)
+        return {"x": x.T, "v": v.T, "F": F.T, "sigma": sig.T, "vol": vol, "r": r.T}
+
+    def diagnostics(self) -> dict[str, float]:
+        d = _call("cpdi_get_diag", self._handle)
+        return dict(zip(DIAG_NAMES, (float(x) for x in d), strict=True))
+
+    def timers(self) -> dict[str, float]:
+        t = _call("cpdi_get_timers", self._handle)
+        return dict(zip(TIMER_NAMES, (float(x) for x in t), strict=True))
+
+    def grid_info(self) -> GridInfo:
+        info = _call("cpdi_grid_info", self._handle)
+        return GridInfo(origin=np.array(info[:2]), h=float(info[2]), nn=(int(info[3]), int(info[4])),
+                        pad=int(info[5]))
+
+    def shape_functions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Weights of the current configuration: node index (0-based), S, dS/dx, dS/dy,
+        each (n, slots)."""
+        ns = SLOTS[self._shape]
+        idx, w, gx, gy = _call("cpdi_get_shape", self._handle, self._n, ns)
+        return idx.T - 1, w.T, gx.T, gy.T
+
+
+def log_strain(F, method: str = "closed") -> np.ndarray:
+    """Plane-strain log strain 1/2 log(F F^T) of F (n,4) [F11, F21, F12, F22] -> (n,3) [e11, e22, e12]."""
+    F = np.atleast_2d(np.asarray(F, dtype=np.float64))
+    if F.ndim != 2 or F.shape[1] != 4:
+        raise CpdiError(1, f"F must have shape (n, 4), got {F.shape}")
+    m = {"closed": 0, "lapack": 1}[method]
+    eps = _call("cpdi_log_strain", np.asfortranarray(F.T), m)
+    return eps.T
+
+
+def pressure(sigma: np.ndarray) -> np.ndarray:
+    """Pressure -tr(sigma)/3 of plane-strain stresses (n,4) [sxx, syy, sxy, szz]."""
+    s = np.asarray(sigma)
+    return -(s[:, 0] + s[:, 1] + s[:, 3]) / 3.0
