@@ -1,0 +1,75 @@
+"""Check `water_column`: a water column collapses in a slip-walled tank (foundation smoke check).
+
+Runs cases/water_column.toml (CPDI, MUSL, reduced bulk modulus). Gates: the run completes,
+no energy is created (kinetic + strain - work of gravity never exceeds its initial value
+by more than 1 % of the work done by gravity), and the surge front stays behind Ritter's
+shallow-water bound Z = 1 + 2T. The Martin & Moyce (1952) points are shown for orientation;
+the gated comparison belongs to the `dam_break_front` check.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from harness import cases, plots, refdata, runner
+from harness.checks.base import CheckContext, CheckResult, Gate
+
+NAME = "water_column"
+REQUIREMENT = ("A water column (L = 0.146 m, 2L high) collapses in a slip-walled tank 4L wide and runs to "
+               "completion with no energy created and its front behind Ritter's bound.")
+REPO = Path(__file__).resolve().parents[2]
+CASE = REPO / "cases" / "water_column.toml"
+MM_FRONT = REPO / "reference" / "data" / "martin_moyce_1952_front_n2eq2_a2.25in_table2.csv"
+L = 0.146
+G = 9.81
+
+
+def run(ctx: CheckContext) -> CheckResult:
+    cell = 0.0146 if ctx.quick else 0.0073
+    case = cases.load(CASE, [f"grid.cell={cell}"])
+    res = CheckResult(NAME, REQUIREMENT)
+    out = runner.run(case, ctx.runs_dir, progress=ctx.progress)
+    s, ser = out.summary, out.series
+    e_total = ser["kinetic_energy"] + ser["strain_energy"] - ser["gravity_work"]
+    wg = max(float(ser["gravity_work"][-1]), 1e-30)
+    T = ser["t"] * np.sqrt(2 * G / L)
+    Z = ser["front_x"] / L
+    res.metrics.update({
+        "completed": 1.0 if s["status"] == "completed" else 0.0,
+        "energy_excess": float(np.max(e_total - e_total[0]) / wg),
+        "energy_dissipated": float((e_total[0] - e_total[-1]) / wg),
+        "ritter_margin_min": float(np.min(1 + 2 * T - Z)),
+        "front_Z_final": float(Z[-1]),
+        "particles": float(s["particles"]),
+        "particle_updates_per_s": float(s["particle_updates_per_s"]),
+    })
+    res.gates += [
+        Gate.at_least("completed", res.metrics["completed"], 1.0),
+        Gate.at_most("energy_excess", res.metrics["energy_excess"], 0.01, "no energy created (1 % of gravity work)"),
+        Gate.at_least("ritter_margin_min", res.metrics["ritter_margin_min"], 0.0, "front behind Z = 1 + 2T"),
+    ]
+    mm = refdata.read(MM_FRONT)
+    plots.time_series(ctx.fig_dir / "water_column_front.png", T, {f"CPDI h = L/{round(L / cell)}": Z},
+                      exact=(T, 1 + 2 * T), exact_label="Ritter (1892) bound 1 + 2T", points={"Martin & Moyce (1952), Table 2": (mm["T"], mm["Z"])},
+                      xlabel="T = t sqrt(2g/L)", ylabel="Z = x_front / L", title="Surge front",
+                      annotate=f"min margin to Ritter = {res.metrics['ritter_margin_min']:.2f}")
+    plots.time_series(ctx.fig_dir / "water_column_energy.png", ser["t"],
+                      {"kinetic": ser["kinetic_energy"], "strain": ser["strain_energy"],
+                       "work of gravity": ser["gravity_work"], "kinetic + strain - work": e_total},
+                      xlabel="t [s]", ylabel="J per m", title="Energy budget",
+                      annotate=f"dissipated {res.metrics['energy_dissipated']:.1%} of the work of gravity")
+    frames = []
+    with h5py.File(ctx.runs_dir / "snapshots.h5", "r") as f:
+        groups = sorted(f["snapshots"])
+        for name in (groups[0], groups[len(groups) // 2], groups[-1]):
+            g = f["snapshots"][name]
+            frames.append((f"t = {g.attrs['time']:.2f} s", g["position"][:], g["pressure"][:] / 1e3))
+    plots.particle_panels(ctx.fig_dir / "water_column_snapshots.png", frames, (0, 0.584), (0, 0.32),
+                          "pressure [kPa]", "Water column collapse (CPDI, MUSL)")
+    res.figures += ["water_column_snapshots.png", "water_column_front.png", "water_column_energy.png"]
+    res.notes.append(f"{s['particles']} particles, {s['steps']} steps, {s['wall_s']:.1f} s wall, "
+                     f"{s['particle_updates_per_s'] / 1e6:.2f} M particle-updates/s.")
+    return res
