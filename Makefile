@@ -58,8 +58,9 @@ bootstrap: venv
 # ---------------------------------------------------------------- build
 $(EXT_STAMP): $(VENV)/.installed $(EXT_SRC)
 	@test -f $(BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(BUILD) fortran --python.install-env=auto -Dpython.bytecompile=-1 >/dev/null
-	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(BUILD) | grep -vE '^\[|^ninja: (Entering|no work)' || true
-	@test -f $(BUILD)/_cpdi*.so || { echo "error: the Fortran extension did not build; see the compiler output above"; exit 1; }
+	@echo "build: compiling the Fortran core and the f2py extension (log: $(BUILD)/compile.log)"
+	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(BUILD) > $(BUILD)/compile.log 2>&1 || \
+	  { cat $(BUILD)/compile.log; echo "error: the Fortran build failed; the compiler output is above"; exit 1; }
 	@rm -f harness/_cpdi*.so && cp $(BUILD)/_cpdi*.so harness/
 	@touch $@
 

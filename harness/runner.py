@@ -65,7 +65,8 @@ def _progress(total: float, enabled: bool, desc: str):
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit="s(sim)", bar_format="{desc}: {percentage:3.0f}%|{bar}| "
-                "t={n:.4g}/{total:.4g} s [{elapsed}<{remaining}{postfix}]", leave=False, dynamic_ncols=True)
+                "t={n:.4g}/{total:.4g} s [{elapsed}<{remaining}{postfix}]", leave=False, dynamic_ncols=True,
+                disable=None)  # None: off when stderr is not a terminal (CI logs)
 
 
 def run(case: Case, out_dir: Path | None = None, progress: bool = True,

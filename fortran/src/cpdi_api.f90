@@ -471,7 +471,7 @@ contains
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
-    integer(ik) :: bad, fail, m
+    integer(ik) :: bad, fail, m, ip
     character(len=200) :: buf
     idx = 1
     w = 0.0_wp
@@ -487,11 +487,13 @@ contains
         write (buf, '(a,i0,a)') 'particle ', bad, ' support is outside the grid or its domain is inverted'
         call st%set(CPDI_ERR_INPUT, trim(buf))
       else
-        m = s%sh%ns
-        idx(1:m, :) = s%sh%idx
-        w(1:m, :) = s%sh%w
-        gx(1:m, :) = s%sh%gx
-        gy(1:m, :) = s%sh%gy
+        do ip = 1, n
+          m = s%sh%cnt(ip)
+          idx(1:m, ip) = s%sh%idx(1:m, ip)
+          w(1:m, ip) = s%sh%w(1:m, ip)
+          gx(1:m, ip) = s%sh%gx(1:m, ip)
+          gy(1:m, ip) = s%sh%gy(1:m, ip)
+        end do
       end if
     end if
     call finish(st, ierr, msg)

@@ -1,8 +1,10 @@
 !> Particle-to-grid interpolation weights: linear MPM, uGIMP and CPDI1.
 module cpdi_shape
   !! For every particle p this fills `ns` slots (node index, weight S_ip, gradient
-  !! grad S_ip). A node may appear in several slots of one particle (CPDI corners
-  !! sharing a node); scatters and gathers simply add them, which is exact.
+  !! grad S_ip); `cnt(p)` of them are in use. For CPDI the 16 corner-node pairs are
+  !! merged into the 3x3 node block when the four corners lie in a 2x2-cell block (the
+  !! usual case), so most CPDI particles use 9 slots; a domain spanning more cells keeps
+  !! 16 slots, in which a node may appear twice (scatters and gathers add them: exact).
   !!
   !! * MPM: bilinear N_i(x_p), 4 slots.
   !! * uGIMP: tensor product of the 1D GIMP function with the initial half-widths
@@ -29,6 +31,7 @@ module cpdi_shape
     integer(ik) :: kind = SHAPE_MPM
     integer(ik) :: ns = 4
     integer(ik), allocatable :: idx(:, :)
+    integer(ik), allocatable :: cnt(:)     !! slots in use per particle
     real(wp), allocatable :: w(:, :), gx(:, :), gy(:, :)
   end type shape_t
 
@@ -57,8 +60,9 @@ contains
     integer :: ierr
     sh%kind = kind
     sh%ns = shape_slots(kind)
-    if (allocated(sh%idx)) deallocate (sh%idx, sh%w, sh%gx, sh%gy)
-    allocate (sh%idx(sh%ns, n), sh%w(sh%ns, n), sh%gx(sh%ns, n), sh%gy(sh%ns, n), stat=ierr)
+    if (allocated(sh%idx)) deallocate (sh%idx, sh%cnt, sh%w, sh%gx, sh%gy)
+    allocate (sh%idx(sh%ns, n), sh%cnt(n), sh%w(sh%ns, n), sh%gx(sh%ns, n), sh%gy(sh%ns, n), stat=ierr)
+    if (ierr == 0) sh%cnt = sh%ns
     if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate interpolation storage; use fewer particles')
   end subroutine shape_alloc
 
@@ -175,17 +179,18 @@ contains
     end do
   end subroutine shape_gimp_one
 
-  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, fail)
+  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, cnt, fail)
     !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y].
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2), r(4)
     integer(ik), intent(out) :: k(16)
     real(wp), intent(out) :: w(16), gx(16), gy(16)
-    integer(ik), intent(out) :: fail
-    real(wp) :: cross, rv, xc(2), nv(4), ga(2), gb(2), gc(2)
-    integer(ik) :: c, kk(4), s0
-    logical :: ok
+    integer(ik), intent(out) :: cnt, fail
+    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4, 4), ga(2), gb(2)
+    integer(ik) :: c, kk(4, 4), s0, i0(4), j0(4), bi, bj, a, li, lj, base
+    logical :: ok, inside
     fail = SHAPE_FAIL_NONE
+    cnt = 16
     cross = r(1)*r(4) - r(2)*r(3)
     if (.not. (cross > 0.0_wp)) then
       fail = SHAPE_FAIL_INVERTED
@@ -198,29 +203,57 @@ contains
     rv = 1.0_wp/(4.0_wp*cross)              ! 1 / V_p
     ga = [r(2) - r(4), r(3) - r(1)]*rv      ! multiplies N(x1) - N(x3)
     gb = [r(2) + r(4), -r(1) - r(3)]*rv     ! multiplies N(x2) - N(x4)
+    xc(:, 1) = [x(1) - r(1) - r(3), x(2) - r(2) - r(4)]
+    xc(:, 2) = [x(1) + r(1) - r(3), x(2) + r(2) - r(4)]
+    xc(:, 3) = [x(1) + r(1) + r(3), x(2) + r(2) + r(4)]
+    xc(:, 4) = [x(1) - r(1) + r(3), x(2) - r(2) + r(4)]
+    gc(:, 1) = ga
+    gc(:, 2) = gb
+    gc(:, 3) = -ga
+    gc(:, 4) = -gb
+    inside = .true.
     do c = 1, 4
-      select case (c)
-      case (1)
-        xc = [x(1) - r(1) - r(3), x(2) - r(2) - r(4)]
-        gc = ga
-      case (2)
-        xc = [x(1) + r(1) - r(3), x(2) + r(2) - r(4)]
-        gc = gb
-      case (3)
-        xc = [x(1) + r(1) + r(3), x(2) + r(2) + r(4)]
-        gc = -ga
-      case default
-        xc = [x(1) - r(1) + r(3), x(2) - r(2) + r(4)]
-        gc = -gb
-      end select
-      call bilinear(g, xc, kk, nv, ok)
-      if (.not. ok) fail = SHAPE_FAIL_OUTSIDE
-      s0 = 4*(c - 1)
-      k(s0 + 1:s0 + 4) = kk
-      w(s0 + 1:s0 + 4) = 0.25_wp*nv
-      gx(s0 + 1:s0 + 4) = nv*gc(1)
-      gy(s0 + 1:s0 + 4) = nv*gc(2)
+      call bilinear(g, xc(:, c), kk(:, c), nv(:, c), ok)
+      if (.not. ok) then
+        fail = SHAPE_FAIL_OUTSIDE
+        inside = .false.
+      end if
+      i0(c) = mod(kk(1, c) - 1, g%nn(1))     ! 0-based lower-left node of the corner's cell
+      j0(c) = (kk(1, c) - 1)/g%nn(1)
     end do
+    bi = minval(i0)
+    bj = minval(j0)
+    if (inside .and. maxval(i0) - bi <= 1 .and. maxval(j0) - bj <= 1) then
+      ! all corners in a 2x2-cell block: merge into the 3x3 node stencil
+      cnt = 9
+      w(1:9) = 0.0_wp
+      gx(1:9) = 0.0_wp
+      gy(1:9) = 0.0_wp
+      base = bi + 1 + bj*g%nn(1)
+      do lj = 0, 2
+        do li = 0, 2
+          k(1 + li + 3*lj) = base + li + lj*g%nn(1)
+        end do
+      end do
+      do c = 1, 4
+        do a = 1, 4
+          li = i0(c) - bi + mod(a - 1, 2)
+          lj = j0(c) - bj + (a - 1)/2
+          s0 = 1 + li + 3*lj
+          w(s0) = w(s0) + 0.25_wp*nv(a, c)
+          gx(s0) = gx(s0) + nv(a, c)*gc(1, c)
+          gy(s0) = gy(s0) + nv(a, c)*gc(2, c)
+        end do
+      end do
+    else
+      do c = 1, 4
+        s0 = 4*(c - 1)
+        k(s0 + 1:s0 + 4) = kk(:, c)
+        w(s0 + 1:s0 + 4) = 0.25_wp*nv(:, c)
+        gx(s0 + 1:s0 + 4) = nv(:, c)*gc(1, c)
+        gy(s0 + 1:s0 + 4) = nv(:, c)*gc(2, c)
+      end do
+    end if
   end subroutine shape_cpdi_one
 
   subroutine shape_compute(g, p, sh, bad, fail)
@@ -246,7 +279,8 @@ contains
       end do
     case (SHAPE_CPDI)
       do ip = 1, p%n
-        call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), f)
+        call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
+                            sh%cnt(ip), f)
         if (f /= SHAPE_FAIL_NONE .and. bad == 0) then
           bad = ip
           fail = f

@@ -204,7 +204,7 @@ contains
   subroutine p2g(s)
     !! Scatter mass, momentum and force to the nodes.
     type(sim_t), intent(inout) :: s
-    integer(ik) :: ip, k, a, ns
+    integer(ik) :: ip, k, a
     real(wp) :: mp, mvx, mvy, vol, sxx, syy, sxy, bx, by, wk, gxk, gyk, wm
     logical :: rig
 
@@ -219,7 +219,6 @@ contains
         g%prx = 0.0_wp
         g%pry = 0.0_wp
       end if
-      ns = sh%ns
       do ip = 1, p%n
         mp = p%m(ip)
         mvx = mp*p%v(1, ip)
@@ -231,7 +230,7 @@ contains
         bx = mp*(s%opt%gravity(1) + p%bf(1, ip))
         by = mp*(s%opt%gravity(2) + p%bf(2, ip))
         rig = s%rigid(p%mat(ip))
-        do a = 1, ns
+        do a = 1, sh%cnt(ip)
           k = sh%idx(a, ip)
           wk = sh%w(a, ip)
           gxk = sh%gx(a, ip)
@@ -307,12 +306,10 @@ contains
     !! Particle velocity (FLIP/PIC blend), position, and velocity gradient.
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
-    integer(ik) :: ip, k, a, ns, nclamp
+    integer(ik) :: ip, k, a, nclamp
     real(wp) :: dvx, dvy, vnx, vny, wk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
     real(wp) :: l11, l21, l12, l22
     logical :: musl, closed(4)
-
-    ns = s%sh%ns
     flip = s%opt%flip
     musl = s%opt%update == UPDATE_MUSL
     xmin = s%g%origin
@@ -340,7 +337,7 @@ contains
           l21 = 0.0_wp
           l12 = 0.0_wp
           l22 = 0.0_wp
-          do a = 1, ns
+          do a = 1, sh%cnt(ip)
             k = sh%idx(a, ip)
             wk = sh%w(a, ip)
             vnx = vnx + wk*g%vx(k)
@@ -394,16 +391,15 @@ contains
     !! MUSL: map the updated particle momentum back to the grid and take the velocity
     !! gradient from that field (Sulsky et al. 1994).
     type(sim_t), intent(inout) :: s
-    integer(ik) :: ip, k, a, ns
+    integer(ik) :: ip, k, a
     real(wp) :: mvx, mvy, wk, l11, l21, l12, l22, rm
-    ns = s%sh%ns
     associate (g => s%g, p => s%p, sh => s%sh)
       g%px = 0.0_wp
       g%py = 0.0_wp
       do ip = 1, p%n
         mvx = p%m(ip)*p%v(1, ip)
         mvy = p%m(ip)*p%v(2, ip)
-        do a = 1, ns
+        do a = 1, sh%cnt(ip)
           k = sh%idx(a, ip)
           wk = sh%w(a, ip)
           g%px(k) = g%px(k) + wk*mvx
@@ -435,7 +431,7 @@ contains
         l21 = 0.0_wp
         l12 = 0.0_wp
         l22 = 0.0_wp
-        do a = 1, ns
+        do a = 1, sh%cnt(ip)
           k = sh%idx(a, ip)
           l11 = l11 + g%vx(k)*sh%gx(a, ip)
           l21 = l21 + g%vy(k)*sh%gx(a, ip)
