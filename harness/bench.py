@@ -61,8 +61,9 @@ def measure(size: str, shape: str, steps: int) -> dict:
 
 
 def _plot(rows: list[dict], path: Path) -> None:
-    from harness import plots  # noqa: F401  (sets the Agg backend)
     import matplotlib.pyplot as plt
+
+    from harness import plots  # noqa: F401  (sets the Agg backend)
 
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for shape in SHAPES:
@@ -89,7 +90,8 @@ def main(quick: bool = False) -> int:
     for size in sizes:
         steps = {"2k": 400, "8k": 200, "32k": 100, "128k": 50}[size]
         for shape in SHAPES:
-            code = f"import json; from harness.bench import measure; print(json.dumps(measure({size!r}, {shape!r}, {steps})))"
+            code = ("import json; from harness.bench import measure; "
+                    f"print(json.dumps(measure({size!r}, {shape!r}, {steps})))")
             p = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True)
             if p.returncode != 0:
                 print(f"error: benchmark {size}/{shape} crashed:\n{p.stderr.strip()}", file=sys.stderr)

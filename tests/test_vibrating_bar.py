@@ -16,8 +16,8 @@ def test_vibrating_bar_converges(shape):
     levels = [13, 26, 52]
     errors = [bar.rms_error(shape, n) for n in levels]
     rates = [np.log2(errors[i] / errors[i + 1]) for i in range(len(errors) - 1)]
-    print(f"\nvibrating bar {shape}: cells {levels} rms(v_cm error)/v0 {['%.3e' % e for e in errors]} "
-          f"rates {['%.2f' % r for r in rates]}")
+    print(f"\nvibrating bar {shape}: cells {levels} rms(v_cm error)/v0 {[f'{e:.3e}' for e in errors]} "
+          f"rates {[f'{r:.2f}' for r in rates]}")
     assert errors[0] < 0.01, "coarsest error should already be below 1 % of v0"
     assert errors[1] < errors[0] and errors[2] < errors[1], "error must fall as the grid is refined"
     assert rates[-1] > 0.9, "dt is tied to h, so at least first order is expected on the finest pair"

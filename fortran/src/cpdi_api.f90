@@ -13,7 +13,7 @@ module cpdi_api
   use cpdi_shape, only: shape_compute, shape_alloc, shape_slots, SHAPE_MPM, SHAPE_CPDI, &
                         SHAPE_FAIL_NONE, SHAPE_FAIL_INVERTED
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
-  use cpdi_kinematics, only: log_strain, log_strain_lapack, det2
+  use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domain
   use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
   implicit none
@@ -257,10 +257,7 @@ contains
       do ip = 1, n
         s%p%jbar(ip) = det2(F(:, ip))
         s%p%vol(ip) = s%p%jbar(ip)*s%p%vol0(ip)
-        s%p%r(1, ip) = F(1, ip)*s%p%r0(1, ip) + F(3, ip)*s%p%r0(2, ip)
-        s%p%r(2, ip) = F(2, ip)*s%p%r0(1, ip) + F(4, ip)*s%p%r0(2, ip)
-        s%p%r(3, ip) = F(1, ip)*s%p%r0(3, ip) + F(3, ip)*s%p%r0(4, ip)
-        s%p%r(4, ip) = F(2, ip)*s%p%r0(3, ip) + F(4, ip)*s%p%r0(4, ip)
+        s%p%r(:, ip) = map_domain(F(:, ip), s%p%r0(:, ip))
       end do
       s%smax = -1.0_wp
     end if

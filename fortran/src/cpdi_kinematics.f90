@@ -10,7 +10,7 @@ module cpdi_kinematics
   implicit none
   private
 
-  public :: left_cauchy_green, log_strain, log_strain_lapack, det2
+  public :: left_cauchy_green, log_strain, log_strain_lapack, det2, map_domain
 
   interface
     subroutine dsyev(jobz, uplo, n, a, lda, w, work, lwork, info)
@@ -30,6 +30,16 @@ contains
     real(wp), intent(in) :: F(4)
     det2 = F(1)*F(4) - F(3)*F(2)
   end function det2
+
+  pure function map_domain(F, r0) result(r)
+    !! CPDI domain vectors carried by F: r_k = F r0_k, layout [r1x, r1y, r2x, r2y].
+    real(wp), intent(in) :: F(4), r0(4)
+    real(wp) :: r(4)
+    r(1) = F(1)*r0(1) + F(3)*r0(2)
+    r(2) = F(2)*r0(1) + F(4)*r0(2)
+    r(3) = F(1)*r0(3) + F(3)*r0(4)
+    r(4) = F(2)*r0(3) + F(4)*r0(4)
+  end function map_domain
 
   pure subroutine left_cauchy_green(F, b)
     !! b = F F^T as [b11, b22, b12].

@@ -16,7 +16,7 @@ module cpdi_step
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI, &
                         SHAPE_FAIL_OUTSIDE, SHAPE_FAIL_INVERTED
   use cpdi_materials, only: material_t, material_stress, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
-  use cpdi_kinematics, only: det2
+  use cpdi_kinematics, only: det2, map_domain
   implicit none
   private
 
@@ -308,7 +308,6 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, k, a, nclamp
     real(wp) :: dvx, dvy, vnx, vny, wk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
-    real(wp) :: l11, l21, l12, l22
     logical :: musl, closed(4)
     flip = s%opt%flip
     musl = s%opt%update == UPDATE_MUSL
@@ -333,10 +332,6 @@ contains
           dvy = 0.0_wp
           vnx = 0.0_wp
           vny = 0.0_wp
-          l11 = 0.0_wp
-          l21 = 0.0_wp
-          l12 = 0.0_wp
-          l22 = 0.0_wp
           do a = 1, sh%cnt(ip)
             k = sh%idx(a, ip)
             wk = sh%w(a, ip)
@@ -344,16 +339,12 @@ contains
             vny = vny + wk*g%vy(k)
             dvx = dvx + wk*(g%vx(k) - g%px(k))
             dvy = dvy + wk*(g%vy(k) - g%py(k))
-            l11 = l11 + g%vx(k)*sh%gx(a, ip)
-            l21 = l21 + g%vy(k)*sh%gx(a, ip)
-            l12 = l12 + g%vx(k)*sh%gy(a, ip)
-            l22 = l22 + g%vy(k)*sh%gy(a, ip)
           end do
           p%v(1, ip) = flip*(p%v(1, ip) + dvx) + (1.0_wp - flip)*vnx
           p%v(2, ip) = flip*(p%v(2, ip) + dvy) + (1.0_wp - flip)*vny
           p%x(1, ip) = xo(1) + dt*vnx
           p%x(2, ip) = xo(2) + dt*vny
-          p%L(:, ip) = [l11, l21, l12, l22]
+          if (.not. musl) p%L(:, ip) = velocity_gradient(sh, g%vx, g%vy, ip)
           ! particles are held on closed walls (the grid already stops their normal motion
           ! at the wall nodes; this removes the residual drift of wide supports)
           if (closed(1) .and. p%x(1, ip) < xmin(1)) then
@@ -387,12 +378,29 @@ contains
     end associate
   end subroutine g2p
 
+  pure function velocity_gradient(sh, vx, vy, ip) result(l)
+    !! L_p = sum_i v_i (x) grad S_ip, layout [L11, L21, L12, L22].
+    type(shape_t), intent(in) :: sh
+    real(wp), intent(in) :: vx(:), vy(:)
+    integer(ik), intent(in) :: ip
+    real(wp) :: l(4)
+    integer(ik) :: a, k
+    l = 0.0_wp
+    do a = 1, sh%cnt(ip)
+      k = sh%idx(a, ip)
+      l(1) = l(1) + vx(k)*sh%gx(a, ip)
+      l(2) = l(2) + vy(k)*sh%gx(a, ip)
+      l(3) = l(3) + vx(k)*sh%gy(a, ip)
+      l(4) = l(4) + vy(k)*sh%gy(a, ip)
+    end do
+  end function velocity_gradient
+
   subroutine musl_remap(s)
     !! MUSL: map the updated particle momentum back to the grid and take the velocity
     !! gradient from that field (Sulsky et al. 1994).
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, a
-    real(wp) :: mvx, mvy, wk, l11, l21, l12, l22, rm
+    real(wp) :: mvx, mvy, wk, rm
     associate (g => s%g, p => s%p, sh => s%sh)
       g%px = 0.0_wp
       g%py = 0.0_wp
@@ -427,18 +435,7 @@ contains
       call grid_apply_walls(g, g%vx, g%vy)
       do ip = 1, p%n
         if (s%rigid(p%mat(ip))) cycle
-        l11 = 0.0_wp
-        l21 = 0.0_wp
-        l12 = 0.0_wp
-        l22 = 0.0_wp
-        do a = 1, sh%cnt(ip)
-          k = sh%idx(a, ip)
-          l11 = l11 + g%vx(k)*sh%gx(a, ip)
-          l21 = l21 + g%vy(k)*sh%gx(a, ip)
-          l12 = l12 + g%vx(k)*sh%gy(a, ip)
-          l22 = l22 + g%vy(k)*sh%gy(a, ip)
-        end do
-        p%L(:, ip) = [l11, l21, l12, l22]
+        p%L(:, ip) = velocity_gradient(sh, g%vx, g%vy, ip)
       end do
     end associate
   end subroutine musl_remap
@@ -489,11 +486,7 @@ contains
         p%vol(ip) = j*p%vol0(ip)
         p%jbar(ip) = j
         if (cpdi) then
-          f = p%F(:, ip)
-          r(1) = f(1)*p%r0(1, ip) + f(3)*p%r0(2, ip)
-          r(2) = f(2)*p%r0(1, ip) + f(4)*p%r0(2, ip)
-          r(3) = f(1)*p%r0(3, ip) + f(3)*p%r0(4, ip)
-          r(4) = f(2)*p%r0(3, ip) + f(4)*p%r0(4, ip)
+          r = map_domain(p%F(:, ip), p%r0(:, ip))
           if (scale) then
             la = r(1:2) + r(3:4)
             lb = r(1:2) - r(3:4)

@@ -53,7 +53,8 @@ def run(ctx: CheckContext) -> CheckResult:
     ]
     mm = refdata.read(MM_FRONT)
     plots.time_series(ctx.fig_dir / "water_column_front.png", T, {f"CPDI h = L/{round(L / cell)}": Z},
-                      exact=(T, 1 + 2 * T), exact_label="Ritter (1892) bound 1 + 2T", points={"Martin & Moyce (1952), Table 2": (mm["T"], mm["Z"])},
+                      exact=(T, 1 + 2 * T), exact_label="Ritter (1892) bound 1 + 2T",
+                      points={"Martin & Moyce (1952), Table 2": (mm["T"], mm["Z"])},
                       xlabel="T = t sqrt(2g/L)", ylabel="Z = x_front / L", title="Surge front",
                       annotate=f"min margin to Ritter = {res.metrics['ritter_margin_min']:.2f}")
     plots.time_series(ctx.fig_dir / "water_column_energy.png", ser["t"],
