@@ -95,8 +95,9 @@ SCHEMA: dict[str, Key] = {
     "solver": Key("table", "time integration and discretisation", required=True, sub={
         "shape": Key("choice", "interpolation", choices=("mpm", "gimp", "cpdi"), default="cpdi"),
         "update": Key("choice", "update scheme", choices=("usl", "musl"), default="musl"),
-        "projection": Key("choice", "volumetric anti-locking projection (none in this build)",
-                          choices=("none",), default="none"),
+        "projection": Key("choice", "volumetric anti-locking projection of ln J increments and mean stress: "
+                          "none, cell (cell-wise constant) or nodal (bilinear, banded LAPACK solve)",
+                          choices=("none", "cell", "nodal"), default="none"),
         "kinematics": Key("choice", "log: finite strain (Hencky); small: sym(F) - I",
                           choices=("log", "small"), default="log"),
         "domain_scaling": Key("bool", "Homel et al. (2016) CPDI domain scaling", default=False),
@@ -136,6 +137,7 @@ MATERIAL = {
     "bulk_modulus": Key("float", "bulk modulus K (newtonian_fluid)", "Pa", check=positive),
     "viscosity": Key("float", "dynamic viscosity (newtonian_fluid)", "Pa s", default=0.0, check=nonneg),
     "velocity": Key("vec2", "prescribed velocity (rigid)", "m/s", default=[0.0, 0.0]),
+    "projection": Key("bool", "takes part in the volumetric projection (default: fluids yes, solids no)"),
 }
 MODEL_NEEDS = {
     "hencky": ("youngs_modulus", "poisson_ratio"),
@@ -288,6 +290,7 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
     if len(set(names)) != len(names):
         raise CaseError(f"material names must be unique, got {names}")
     for i, m in enumerate(mats):
+        m.setdefault("projection", m["model"] == "newtonian_fluid")
         for need in MODEL_NEEDS[m["model"]]:
             if need not in m:
                 raise CaseError(f"materials[{i}] ('{m['name']}', model {m['model']}) needs '{need}' "

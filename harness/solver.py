@@ -21,7 +21,7 @@ WALLS = {"open": 0, "slip": 1, "noslip": 2}
 WALL_SIDES = ("left", "right", "bottom", "top")
 MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4}
 KINEMATICS = {"log": 0, "small": 1}
-PROJECTIONS = {"none": 0}
+PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps")
@@ -157,11 +157,12 @@ class Simulation:
 
     def set_materials(self, materials: Sequence[Mapping]) -> None:
         """Materials as dicts: model plus density, youngs_modulus, poisson_ratio,
-        bulk_modulus, viscosity, velocity (as the model needs)."""
+        bulk_modulus, viscosity, velocity (as the model needs), and projection (bool:
+        takes part in the volumetric projection; default true for fluids only)."""
         if len(materials) == 0:
             raise CpdiError(1, "at least one material is needed")
         models = np.zeros(len(materials), dtype=np.int32)
-        props = np.zeros((7, len(materials)), order="F")
+        props = np.zeros((8, len(materials)), order="F")
         for m, mat in enumerate(materials):
             try:
                 models[m] = MODELS[mat["model"]]
@@ -171,7 +172,8 @@ class Simulation:
             vel = mat.get("velocity", (0.0, 0.0))
             props[:, m] = [mat.get("density", 0.0), mat.get("youngs_modulus", 0.0),
                            mat.get("poisson_ratio", 0.0), mat.get("bulk_modulus", 0.0),
-                           mat.get("viscosity", 0.0), vel[0], vel[1]]
+                           mat.get("viscosity", 0.0), vel[0], vel[1],
+                           float(mat.get("projection", mat["model"] == "newtonian_fluid"))]
         _call("cpdi_set_materials", self._handle, models, props)
 
     def set_particles(self, x, v, mass, vol, r, mat) -> None:
@@ -247,6 +249,19 @@ class Simulation:
         info = _call("cpdi_grid_info", self._handle)
         return GridInfo(origin=np.array(info[:2]), h=float(info[2]), nn=(int(info[3]), int(info[4])),
                         pad=int(info[5]))
+
+    def project(self, values, mode: str = "cell", mask=None) -> np.ndarray:
+        """Mass-weighted projection of a particle field (n,) onto cell-wise constant
+        (``cell``) or nodal bilinear (``nodal``) functions, using the run's interpolation
+        domains; particles with mask False keep their values."""
+        val = np.array(values, dtype=np.float64)
+        if val.shape != (self._n,):
+            raise CpdiError(1, f"values has shape {val.shape}, expected ({self._n},)")
+        m = np.ones(self._n, dtype=np.int32) if mask is None else np.asarray(mask).astype(np.int32)
+        code = {"cell": 1, "nodal": 2}.get(mode)
+        if code is None:
+            raise CpdiError(1, f"projection mode {mode!r} is not available; use 'cell' or 'nodal'")
+        return _call("cpdi_project", self._handle, code, m, val)
 
     def shape_functions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Weights of the current configuration: node index (0-based), S, dS/dx, dS/dy,

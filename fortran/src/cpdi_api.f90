@@ -14,6 +14,7 @@ module cpdi_api
                         SHAPE_FAIL_NONE, SHAPE_FAIL_INVERTED
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domain
+  use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
   implicit none
@@ -32,7 +33,7 @@ module cpdi_api
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
             cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
-            cpdi_set_state
+            cpdi_set_state, cpdi_project
 
 contains
 
@@ -141,7 +142,7 @@ contains
 
   subroutine cpdi_set_materials(handle, nmat, model, props, ierr, msg)
     !! Define nmat materials. model: 1 hencky, 2 newtonian_fluid, 3 rigid, 4 neo_hookean.
-    !! props(:, m) = [density, youngs_modulus, poisson_ratio, bulk_modulus, viscosity, vx, vy].
+    !! props(:, m) = [density, youngs_modulus, poisson_ratio, bulk_modulus, viscosity, vx, vy, project (0/1)].
     integer(c_int), intent(in) :: handle
     integer(c_int), intent(in) :: nmat
     integer(c_int), intent(in) :: model(nmat)
@@ -283,8 +284,8 @@ contains
         call st%set(CPDI_ERR_INPUT, 'shape must be 0 (mpm), 1 (gimp) or 2 (cpdi)')
       else if (iopt(2) /= UPDATE_USL .and. iopt(2) /= UPDATE_MUSL) then
         call st%set(CPDI_ERR_INPUT, 'update must be 0 (usl) or 1 (musl)')
-      else if (iopt(3) /= 0) then
-        call st%set(CPDI_ERR_INPUT, 'projection must be 0 (none) in this build')
+      else if (iopt(3) < 0 .or. iopt(3) > 2) then
+        call st%set(CPDI_ERR_INPUT, 'projection must be 0 (none), 1 (cell) or 2 (nodal)')
       else if (iopt(4) /= KIN_LOG .and. iopt(4) /= KIN_SMALL) then
         call st%set(CPDI_ERR_INPUT, 'kinematics must be 0 (log) or 1 (small)')
       else if (any(iopt(5:6) < 0) .or. any(iopt(5:6) > 1)) then
@@ -495,6 +496,30 @@ contains
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_get_shape
+
+  subroutine cpdi_project(handle, n, mode, mask, val, ierr, msg)
+    !! Project a particle field val(n) with the current configuration and the run's
+    !! interpolation: mode 1 cell-wise constant, 2 nodal bilinear. Only particles with
+    !! mask /= 0 take part; the others keep their values.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n, mode
+    integer(c_int), intent(in) :: mask(n)
+    real(c_double), intent(inout) :: val(n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) call sim_prepare(s, st)
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'val must have one entry per particle')
+    if (st%ok() .and. (mode < 1 .or. mode > 2)) call st%set(CPDI_ERR_INPUT, 'mode must be 1 (cell) or 2 (nodal)')
+    if (st%ok() .and. .not. finite_all(val)) call st%set(CPDI_ERR_INPUT, 'val contains NaN or Inf')
+    if (st%ok()) then
+      if (.not. allocated(s%proj%hd)) call projection_alloc(s%proj, s%g, st)
+      if (st%ok()) call project_scalar(s%proj, mode, s%opt%shape, s%g, s%p, mask /= 0, val, st)
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_project
 
   subroutine cpdi_log_strain(n, F, method, eps, ierr, msg)
     !! Log strain 1/2 log(F F^T) of n plane-strain gradients F(4,n); eps(3,n) = [e11, e22, e12].

@@ -19,7 +19,7 @@ module cpdi_materials
   integer(ik), parameter, public :: KIN_LOG = 0          !! finite strain: Hencky log strain
   integer(ik), parameter, public :: KIN_SMALL = 1        !! small strain: eps = sym(F) - I
 
-  integer, parameter, public :: NMATPROP = 7  !! props: density, E, nu, K, viscosity, vx, vy
+  integer, parameter, public :: NMATPROP = 8  !! props: density, E, nu, K, viscosity, vx, vy, project
 
   type, public :: material_t
     integer(ik) :: model = MAT_HENCKY
@@ -30,6 +30,7 @@ module cpdi_materials
     real(wp) :: visc = 0.0_wp     !! dynamic viscosity [Pa s] (fluid)
     real(wp) :: vel(2) = 0.0_wp   !! prescribed velocity [m/s] (rigid)
     real(wp) :: pmod = 0.0_wp     !! P-wave modulus K + 4G/3 [Pa], for the signal speed
+    logical :: project = .false.  !! takes part in the volumetric projection
   end type material_t
 
   public :: material_init, material_stress
@@ -53,6 +54,7 @@ contains
     end if
     mat%model = model
     mat%rho0 = props(1)
+    mat%project = props(8) /= 0.0_wp .and. model /= MAT_RIGID
     if (.not. (props(1) > 0.0_wp)) then
       write (buf, '(a,i0,a,es11.3,a)') 'material ', imat, ' density is ', props(1), &
         '; density must be positive (kg/m^3)'

@@ -17,6 +17,7 @@ module cpdi_step
                         SHAPE_FAIL_OUTSIDE, SHAPE_FAIL_INVERTED
   use cpdi_materials, only: material_t, material_stress, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: det2, map_domain
+  use cpdi_projection, only: projection_t, projection_alloc, project_scalar, PROJ_NONE
   implicit none
   private
 
@@ -33,7 +34,7 @@ module cpdi_step
   type, public :: options_t
     integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
     integer(ik) :: update = UPDATE_MUSL      !! UPDATE_USL or UPDATE_MUSL
-    integer(ik) :: projection = 0            !! 0 none (others: cpdi_projection)
+    integer(ik) :: projection = PROJ_NONE    !! PROJ_NONE, PROJ_CELL or PROJ_NODAL
     integer(ik) :: kinematics = KIN_LOG      !! KIN_LOG or KIN_SMALL
     integer(ik) :: domain_scaling = 0        !! 1: Homel et al. (2016) domain scaling
     integer(ik) :: fixed_dt = 0              !! 1: use dt below instead of the CFL step
@@ -56,6 +57,8 @@ module cpdi_step
     logical, allocatable :: fluid(:)         !! per material: F kept isotropic, sqrt(J) I
     logical :: any_rigid = .false.
     type(shape_t) :: sh
+    type(projection_t) :: proj
+    logical, allocatable :: pmask(:)         !! per particle: takes part in the projection
     type(options_t) :: opt
     real(wp) :: t = 0.0_wp
     integer(int64) :: steps = 0
@@ -104,6 +107,14 @@ contains
     if (s%sh%kind /= s%opt%shape .or. .not. allocated(s%sh%idx) .or. size(s%sh%w, 2) /= s%p%n) then
       call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
       if (.not. st%ok()) return
+    end if
+    if (s%opt%projection /= PROJ_NONE) then
+      if (.not. allocated(s%proj%hd)) call projection_alloc(s%proj, s%g, st)
+      if (size(s%proj%hd) /= s%g%nnodes) call projection_alloc(s%proj, s%g, st)
+      if (.not. st%ok()) return
+      if (allocated(s%pmask)) deallocate (s%pmask)
+      allocate (s%pmask(s%p%n))
+      s%pmask = s%mats(s%p%mat)%project
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
@@ -441,28 +452,30 @@ contains
   end subroutine musl_remap
 
   subroutine deformation_update(s, dt, st)
-    !! F <- (I + dt L) F, volume J V0, CPDI domains r = F r0 (optionally scaled).
+    !! F <- (I + dt L) F, volume J V0, CPDI domains r = F r0 (optionally scaled). With the
+    !! projection on, the volumetric strain increment ln det(I + dt L) of the participating
+    !! particles is projected (rate form, Mast et al. 2012) and J and F are rebuilt from it:
+    !! fluids F = sqrt(J) I, solids F <- sqrt(J~/J) F (plane-strain F-bar).
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
     integer(ik) :: ip
-    real(wp) :: a11, a21, a12, a22, f(4), j, la(2), lb(2), lc, na, nb, r(4)
+    real(wp) :: a11, a21, a12, a22, f(4), j, deta, jn
     character(len=300) :: buf
-    logical :: cpdi, scale
+    logical :: proj
 
-    cpdi = s%opt%shape == SHAPE_CPDI
-    scale = s%opt%domain_scaling == 1
-    lc = s%opt%lcrit*s%g%h
+    proj = s%opt%projection /= PROJ_NONE
     associate (p => s%p)
       do ip = 1, p%n
         a11 = 1.0_wp + dt*p%L(1, ip)
         a21 = dt*p%L(2, ip)
         a12 = dt*p%L(3, ip)
         a22 = 1.0_wp + dt*p%L(4, ip)
+        deta = a11*a22 - a12*a21
         f = p%F(:, ip)
         if (s%fluid(p%mat(ip))) then
           ! a fluid has no memory of shear: keep only its volume ratio, F = sqrt(J) I
-          j = det2(f)*(a11*a22 - a12*a21)
+          j = det2(f)*deta
           p%F(:, ip) = [sqrt(max(j, 0.0_wp)), 0.0_wp, 0.0_wp, sqrt(max(j, 0.0_wp))]
         else
           p%F(1, ip) = a11*f(1) + a12*f(2)
@@ -471,7 +484,7 @@ contains
           p%F(4, ip) = a21*f(3) + a22*f(4)
           j = det2(p%F(:, ip))
         end if
-        if (.not. (j > 0.0_wp)) then
+        if (.not. (j > 0.0_wp) .or. .not. (deta > 0.0_wp)) then
           if (j /= j) then
             write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN in the velocity gradient of particle ', &
               ip, '; the run became unstable (reduce cfl, check material parameters)'
@@ -485,25 +498,55 @@ contains
         end if
         p%vol(ip) = j*p%vol0(ip)
         p%jbar(ip) = j
-        if (cpdi) then
-          r = map_domain(p%F(:, ip), p%r0(:, ip))
-          if (scale) then
-            la = r(1:2) + r(3:4)
-            lb = r(1:2) - r(3:4)
-            na = norm2(la)
-            nb = norm2(lb)
-            if (na > lc .or. nb > lc) then
-              if (na > lc) la = la*(lc/na)
-              if (nb > lc) lb = lb*(lc/nb)
-              r(1:2) = 0.5_wp*(la + lb)
-              r(3:4) = 0.5_wp*(la - lb)
-            end if
-          end if
-          p%r(:, ip) = r
+        if (proj) then
+          p%work(1, ip) = log(deta)          ! volumetric strain increment, projected below
+          p%work(2, ip) = det2(f)            ! J at the start of the step
+        else
+          call update_domain(s, ip)
         end if
       end do
+      if (proj) then
+        call project_scalar(s%proj, s%opt%projection, s%opt%shape, s%g, p, s%pmask, p%work(1, :), st)
+        if (.not. st%ok()) return
+        do ip = 1, p%n
+          if (s%pmask(ip)) then
+            jn = p%work(2, ip)*exp(p%work(1, ip))
+            if (s%fluid(p%mat(ip))) then
+              p%F(:, ip) = [sqrt(jn), 0.0_wp, 0.0_wp, sqrt(jn)]
+            else
+              p%F(:, ip) = p%F(:, ip)*sqrt(jn/p%jbar(ip))
+            end if
+            p%vol(ip) = jn*p%vol0(ip)
+            p%jbar(ip) = jn
+          end if
+          call update_domain(s, ip)
+        end do
+      end if
     end associate
   end subroutine deformation_update
+
+  subroutine update_domain(s, ip)
+    !! CPDI domain of particle ip from its F, with optional Homel et al. (2016) scaling.
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: ip
+    real(wp) :: la(2), lb(2), na, nb, lc, r(4)
+    if (s%opt%shape /= SHAPE_CPDI) return
+    r = map_domain(s%p%F(:, ip), s%p%r0(:, ip))
+    if (s%opt%domain_scaling == 1) then
+      lc = s%opt%lcrit*s%g%h
+      la = r(1:2) + r(3:4)
+      lb = r(1:2) - r(3:4)
+      na = norm2(la)
+      nb = norm2(lb)
+      if (na > lc .or. nb > lc) then
+        if (na > lc) la = la*(lc/na)
+        if (nb > lc) lb = lb*(lc/nb)
+        r(1:2) = 0.5_wp*(la + lb)
+        r(3:4) = 0.5_wp*(la - lb)
+      end if
+    end if
+    s%p%r(:, ip) = r
+  end subroutine update_domain
 
   subroutine stress_update(s, st)
     !! Stress and energy of every particle; signal speed for the next step.
@@ -541,5 +584,28 @@ contains
     s%smax = smax
     s%visc_dt = vdt
     s%diag(11) = smax
+    if (s%opt%projection /= PROJ_NONE .and. allocated(s%pmask)) call project_mean_stress(s, st)
   end subroutine stress_update
+
+  subroutine project_mean_stress(s, st)
+    !! Replace the mean stress (sxx + syy + szz)/3 of the participating particles by its
+    !! projection; the deviatoric stress is left as it is.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip
+    associate (p => s%p)
+      do ip = 1, p%n
+        p%work(1, ip) = (p%sig(1, ip) + p%sig(2, ip) + p%sig(4, ip))/3.0_wp
+        p%work(2, ip) = p%work(1, ip)
+      end do
+      call project_scalar(s%proj, s%opt%projection, s%opt%shape, s%g, p, s%pmask, p%work(1, :), st)
+      if (.not. st%ok()) return
+      do ip = 1, p%n
+        if (.not. s%pmask(ip)) cycle
+        p%sig(1, ip) = p%sig(1, ip) + (p%work(1, ip) - p%work(2, ip))
+        p%sig(2, ip) = p%sig(2, ip) + (p%work(1, ip) - p%work(2, ip))
+        p%sig(4, ip) = p%sig(4, ip) + (p%work(1, ip) - p%work(2, ip))
+      end do
+    end associate
+  end subroutine project_mean_stress
 end module cpdi_step
