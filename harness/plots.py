@@ -58,7 +58,10 @@ def particle_panels(path: Path, frames: list[tuple[str, np.ndarray, np.ndarray]]
                     title: str = "") -> None:
     """Side-by-side particle scatter plots coloured by a field: frames = [(label, x (n,2), c (n,))].
     The colour range spans the 1st-99th percentiles of all frames so isolated spikes do not hide the field."""
-    fig, axes = plt.subplots(1, len(frames), figsize=(4.2 * len(frames), 3.4), squeeze=False)
+    aspect = (ylim[1] - ylim[0]) / (xlim[1] - xlim[0])
+    width = 4.2 if aspect <= 1.5 else 2.4
+    fig, axes = plt.subplots(1, len(frames), figsize=(width * len(frames) + 1.2, width * aspect + 1.3),
+                             squeeze=False)
     allc = np.concatenate([np.asarray(c, float) for _, _, c in frames])
     vmin, vmax = (float(v) for v in np.nanpercentile(allc, [1, 99]))
     for ax, (label, x, c) in zip(axes[0], frames, strict=True):
