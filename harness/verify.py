@@ -18,7 +18,7 @@ from harness import provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
 REPO = Path(__file__).resolve().parent.parent
-CHECKS = ["vibrating_bar", "water_column", "hydrostatic_locking"]
+CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking"]
 
 
 def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> list[CheckResult]:
