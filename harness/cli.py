@@ -40,7 +40,7 @@ def cmd_verify(args) -> int:
     from harness import verify
 
     return verify.main(quick=args.quick, only=args.only, out=Path(args.out) if args.out else None,
-                       progress=not args.no_progress)
+                       progress=not args.no_progress, regen_gold=args.regen_gold)
 
 
 def cmd_report(args) -> int:
@@ -76,6 +76,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--only", nargs="+", metavar="NAME", help="run only these checks")
     v.add_argument("--out", help="report directory (default reports/<UTC stamp>)")
     v.add_argument("--no-progress", action="store_true")
+    v.add_argument("--regen-gold", action="store_true",
+                   help="run the full and quick tiers and rewrite reference/gold/metrics.json (never in CI)")
     v.set_defaults(func=cmd_verify)
     rep = sub.add_parser("report", help="re-render a report from stored data")
     rep.add_argument("dir", help="report directory")

@@ -14,7 +14,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from harness import provenance, report
+from harness import gate, provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
 REPO = Path(__file__).resolve().parent.parent
@@ -51,24 +51,61 @@ def _point_latest(out_dir: Path) -> None:
         pass
 
 
-def main(quick: bool = False, only: list[str] | None = None, out: Path | None = None, progress: bool = True) -> int:
+def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tuple[dict, list[dict]]:
+    """Run the checks, compare with gold, write the report; returns (metrics, gate rows)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    prov = provenance.collect(REPO, REPO / "build")
+    prov["tier"] = "quick" if quick else "full"
+    results = run_checks(names, out_dir, quick, progress)
+    draft = report.build_metrics(results, prov, quick)
+    rows = gate.compare(draft, gate.load_gold(), "quick" if quick else "full")
+    metrics = report.write_report(out_dir, results, prov, quick, gate_summary=rows or None)
+    width = max(len(r.name) for r in results)
+    print("\n" + "check".ljust(width) + "  result  verdict")
+    for r in results:
+        print(f"{r.name.ljust(width)}  {'PASS' if r.passed else 'FAIL'}    {r.verdict}")
+    for line in gate.summary_lines(rows):
+        print(line)
+    if not rows:
+        print("gold: no baseline for this tier (make regen-gold writes one)")
+    else:
+        bad = sum(r["status"] == "regressed" for r in rows)
+        print(f"gold: {len(rows)} metrics compared, {bad} regressed, "
+              f"{sum(r['status'] == 'improved' for r in rows)} improved")
+    print(f"\nreport: {out_dir}/index.html ({'quick' if quick else 'full'} tier)")
+    return metrics, rows
+
+
+def _stamp(quick: bool) -> str:
+    return datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ") + ("-quick" if quick else "")
+
+
+def main(quick: bool = False, only: list[str] | None = None, out: Path | None = None, progress: bool = True,
+         regen_gold: bool = False) -> int:
     names = CHECKS if not only else only
     unknown = [n for n in names if n not in CHECKS]
     if unknown:
         print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)}", file=sys.stderr)
         return 2
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    out_dir = out or REPO / "reports" / (stamp + ("-quick" if quick else ""))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    prov = provenance.collect(REPO, REPO / "build")
-    prov["tier"] = "quick" if quick else "full"
-    results = run_checks(names, out_dir, quick, progress)
-    metrics = report.write_report(out_dir, results, prov, quick)
+    if regen_gold:
+        if only:
+            print("error: --regen-gold runs every check; drop --only", file=sys.stderr)
+            return 2
+        tiers = {}
+        for tier_quick in (False, True):
+            out_dir = REPO / "reports" / _stamp(tier_quick)
+            metrics, _ = verify(tier_quick, CHECKS, out_dir, progress)
+            failed = [n for n, c in metrics["checks"].items() if not c["passed"]]
+            if failed:
+                print(f"error: gold not written: checks failed in the {'quick' if tier_quick else 'full'} tier: "
+                      f"{', '.join(failed)}; fix them first", file=sys.stderr)
+                return 1
+            tiers["quick" if tier_quick else "full"] = metrics
+        gate.write_gold(tiers, metrics["provenance"])
+        print(f"wrote {gate.GOLD.relative_to(REPO)}: review the diff and commit it")
+        return 0
+    out_dir = out or REPO / "reports" / _stamp(quick)
+    metrics, _ = verify(quick, names, out_dir, progress)
     if out is None:
         _point_latest(out_dir)
-    width = max(len(r.name) for r in results)
-    print("\n" + "check".ljust(width) + "  result  verdict")
-    for r in results:
-        print(f"{r.name.ljust(width)}  {'PASS' if r.passed else 'FAIL'}    {r.verdict}")
-    print(f"\nreport: {out_dir}/index.html ({'quick' if quick else 'full'} tier)")
     return 0 if metrics["passed"] else 1
