@@ -55,6 +55,28 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_gate(args) -> int:
+    import json
+
+    from harness import gate
+
+    path = Path(args.metrics)
+    if not path.is_file():
+        _err(f"{path} does not exist; give a metrics.json written by `python -m harness verify`")
+        return 2
+    metrics = json.loads(path.read_text())
+    tier = "quick" if metrics.get("quick") else "full"
+    rows = gate.compare(metrics, gate.load_gold(), tier)
+    if not rows:
+        _err(f"no gold baseline for the {tier} tier in reference/gold/metrics.json; run make regen-gold")
+        return 2
+    for line in gate.summary_lines(rows):
+        print(line)
+    bad = [r for r in rows if r["status"] == "regressed"]
+    print(f"gate ({tier}): {len(rows)} metrics, {len(bad)} regressed")
+    return 1 if bad else 0
+
+
 def cmd_bench(args) -> int:
     from harness import bench
 
@@ -82,6 +104,9 @@ def parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="re-render a report from stored data")
     rep.add_argument("dir", help="report directory")
     rep.set_defaults(func=cmd_report)
+    gt = sub.add_parser("gate", help="compare a metrics.json with the gold baselines")
+    gt.add_argument("metrics", help="metrics.json of a verify run")
+    gt.set_defaults(func=cmd_gate)
     b = sub.add_parser("bench", help="performance benchmark")
     b.add_argument("--quick", action="store_true")
     b.set_defaults(func=cmd_bench)
