@@ -31,9 +31,12 @@ def loglog_convergence(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarra
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for name, (h, e) in curves.items():
         ax.loglog(h, e, "-o", color=COLORS.get(name), label=name.upper())
-    h0, e0 = next(iter(curves.values()))
-    for p in ref_orders:
-        ax.loglog(h0, e0[0] * (h0 / h0[0]) ** p, "k--", lw=0.8, alpha=0.6, label=f"slope {p}")
+    if curves:
+        h0, e0 = next(iter(curves.values()))
+        for p in ref_orders:
+            ax.loglog(h0, e0[0] * (h0 / h0[0]) ** p, "k--", lw=0.8, alpha=0.6, label=f"slope {p}")
+    else:
+        ax.text(0.5, 0.5, "no interpolation completed two levels", transform=ax.transAxes, ha="center")
     ax.set_xlabel("h [m]")
     ax.set_ylabel(ylabel)
     _finish(fig, ax, path, title, annotate)
