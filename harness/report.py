@@ -358,15 +358,33 @@ def _html_check(out_dir: Path, r: CheckResult) -> str:
     return "\n".join(parts)
 
 
-def _html_gate_summary(rows: list[dict]) -> str:
+def _gate_table(rows: list[dict], with_reason: bool) -> str:
     body, classes = [], []
     for row in rows:
         status = str(row.get("status", ""))
         badge_cls = {"ok": "pass", "regressed": "fail", "improved": "info"}.get(status, "muted")
         label = f'<span class="badge {badge_cls}">{html.escape(_gate_status_label(status))}</span>'
-        body.append([_e(row.get(k)) for k in GATE_SUMMARY_FIELDS[:6]] + [label, _e(row.get("reason", ""))])
+        cells = [_e(row.get(k)) for k in GATE_SUMMARY_FIELDS[:6]] + [label]
+        body.append(cells + ([_e(row.get("reason", ""))] if with_reason else []))
         classes.append(status if status in ("regressed", "improved") else "")
-    return "<h2>Regression gate vs gold</h2>\n" + _html_rows(list(GATE_SUMMARY_FIELDS), body, classes)
+    head = list(GATE_SUMMARY_FIELDS) if with_reason else list(GATE_SUMMARY_FIELDS[:7])
+    return _html_rows(head, body, classes)
+
+
+def _html_gate_summary(rows: list[dict]) -> str:
+    """Counts, the rows that need attention (with their reasons), and the full table folded."""
+    counts = {k: sum(r.get("status") == k for r in rows) for k in ("ok", "regressed", "improved")}
+    out = ["<h2>Regression gate vs gold</h2>",
+           f"<p>{len(rows)} metrics compared with <code>reference/gold/metrics.json</code>: "
+           f"{counts['ok']} within tolerance, {counts['regressed']} regressed, {counts['improved']} improved.</p>"]
+    attention = [r for r in rows if r.get("status") != "ok"]
+    if attention:
+        out.append(_gate_table(attention, with_reason=True))
+    reasons = sorted({str(r.get("reason", "")) for r in rows if r.get("status") == "ok" and r.get("reason")})
+    out.append("<details><summary>All compared metrics</summary>" + _gate_table(rows, with_reason=False)
+               + "<p>Tolerance reasons:</p><ul>" + "".join(f"<li>{html.escape(x)}</li>" for x in reasons)
+               + "</ul></details>")
+    return "\n".join(out)
 
 
 def render_html(

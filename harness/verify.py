@@ -55,7 +55,6 @@ def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tupl
     """Run the checks, compare with gold, write the report; returns (metrics, gate rows)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     prov = provenance.collect(REPO, REPO / "build")
-    prov["tier"] = "quick" if quick else "full"
     results = run_checks(names, out_dir, quick, progress)
     draft = report.build_metrics(results, prov, quick)
     rows = gate.compare(draft, gate.load_gold(), "quick" if quick else "full")

@@ -1,8 +1,9 @@
 """1D vibrating bar against the analytic centre-of-mass velocity (harness.problems.vibrating_bar).
 
 Measured (CPDI, cells 13/26/52, v0 = 1e-3): at cfl = 0.1 the observed rates are 1.4, 1.2:
-first order, because dt is tied to h and the symplectic Euler update is first order in
-time; at cfl = 0.01 they are 1.9, 1.7 (the spatial error is second order).
+first order, because MUSL's velocities are half-step (leapfrog) values, an O(dt) offset at
+whole steps, and dt is tied to h; at cfl = 0.01 they are 1.9, 1.7 (the spatial error is second
+order, as are the positions: see the convergence check).
 """
 
 import numpy as np

@@ -80,8 +80,14 @@ def run(ctx: CheckContext) -> CheckResult:
                 res.metrics[f"order_l2_{case}_{shape}"] = float("nan")
             table = metrics.convergence_table(h, e2, "L2")
             rates_inf = metrics.observed_orders(h, einf)
+            extra = ""
+            if g is not None:
+                extra = (f"\n\nRichardson / GCI (three finest levels, Fs = 1.25): order {g.p_three_level:.2f} "
+                         f"({g.convergence}), extrapolated error limit {g.e_limit:.2e} (0 = converging to the "
+                         f"exact solution), GCI_fine {g.gci_fine:.2e}, GCI_medium {g.gci_medium:.2e}, asymptotic "
+                         f"ratio {g.asymptotic_ratio:.2f} (~1 in the asymptotic range).")
             res.tables.append(f"**{case}, {shape.upper()}** (L-inf rates: "
-                              + ", ".join(f"{x:.2f}" for x in rates_inf) + ")\n\n" + table)
+                              + ", ".join(f"{x:.2f}" for x in rates_inf) + ")\n\n" + table + extra)
         exp = EXPECTED[case]
         p_cpdi = res.metrics.get(f"order_l2_{case}_cpdi", float("nan"))
         res.gates.append(Gate.at_least(f"order_l2_{case}_cpdi", p_cpdi, exp - 0.2, f"expected order {exp:g}"))
