@@ -45,8 +45,8 @@ def loglog_convergence(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarra
 def time_series(path: Path, t, series: dict[str, np.ndarray], exact=None, points=None, xlabel="t", ylabel="",
                 title="", annotate: str | None = None, exact_label: str = "analytic") -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    for name, y in series.items():
-        ax.plot(t if not isinstance(y, tuple) else y[0], y if not isinstance(y, tuple) else y[1], "-", label=name)
+    for name, y in series.items():  # y is an array over t, or an (x, y) pair of its own
+        ax.plot(y[0] if isinstance(y, tuple) else t, y[1] if isinstance(y, tuple) else y, "-", label=name)
     if exact is not None:
         ax.plot(exact[0], exact[1], "k--", lw=1, label=exact_label)
     if points is not None:

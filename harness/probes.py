@@ -3,9 +3,10 @@
 * ``front_x``: surge front. Among particles of the material in the floor layer
   (y < floor + layer, layer = one cell by default), the largest x that has at least
   ``min_count`` floor-layer particles within two particle spacings behind it, so an
-  isolated droplet ahead of the front does not count.
+  isolated droplet ahead of the front does not count; plus half a particle spacing, the
+  extent of the particle's domain (so the front of a fresh column is exactly its width).
 * ``column_height``: largest y of the material's particles in the wall layer
-  (x < left wall + layer).
+  (x < left wall + layer), plus half a particle spacing, measured from the floor.
 * ``displacement_x`` / ``displacement_y``: displacement of the particle that started
   nearest to ``point``.
 """
@@ -50,10 +51,11 @@ class ProbeSet:
             layer = p.get("layer", self.h)
             sel = x[self.masks[name]]
             if kind == "front_x":
-                out[name] = front_x(sel, self.origin[1] + layer, self.spacing, p["min_count"])
+                out[name] = front_x(sel, self.origin[1] + layer, self.spacing, p["min_count"]) \
+                    + 0.5 * self.spacing - self.origin[0]
             elif kind == "column_height":
                 wall = sel[sel[:, 0] < self.origin[0] + layer]
-                out[name] = float(wall[:, 1].max() - self.origin[1]) if len(wall) else 0.0
+                out[name] = float(wall[:, 1].max() + 0.5 * self.spacing - self.origin[1]) if len(wall) else 0.0
             else:
                 comp = 0 if kind == "displacement_x" else 1
                 a = self.anchor[name]

@@ -18,7 +18,7 @@ from harness import gate, provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
 REPO = Path(__file__).resolve().parent.parent
-CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking"]
+CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front"]
 
 
 def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> list[CheckResult]:
