@@ -111,7 +111,7 @@ def run(ctx: CheckContext) -> CheckResult:
                       "the gated run:\n\n| h/L | shape | projection | RMS dZ | shift dT | RMS dZ shifted | RMS dH "
                       "| gates |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows))
     krows = []
-    for (n, _, _, K), out in zip(k_jobs, small[len(table_jobs):], strict=True):
+    for (_n, _, _, K), out in zip(k_jobs, small[len(table_jobs):], strict=True):
         if not isinstance(out, Exception):
             krows.append(f"| {K:.2e} | {out['front_time_shift']:+.3f} | {out['front_rms_dz_shifted']:.3f} | "
                          f"{out['height_rms_dh']:.3f} |")
