@@ -24,7 +24,8 @@ KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
-              "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps")
+              "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
+              "viscous_dissipation")
 TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
                7: "cfl", 8: "lapack", 9: "handle", 10: "alloc"}
@@ -211,6 +212,15 @@ class Simulation:
         ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
         self._shape = shape
+
+    def set_bodies(self, body, contact: bool = False, friction: float = 0.0) -> None:
+        """Body index (n,) 0-based of every particle; with contact each body gets its own
+        velocity field and Bardenhagen frictional contact acts between them."""
+        b = np.asarray(body)
+        if b.shape != (self._n,) or (b.size and (np.any(b < 0) or np.any(b != np.round(b)))):
+            raise CpdiError(1, f"body must be ({self._n},) whole numbers >= 0, got shape {b.shape}")
+        _call("cpdi_set_bodies", self._handle, (b.astype(np.int64) + 1).astype(np.int32), int(bool(contact)),
+              float(friction))
 
     def set_body_force(self, b) -> None:
         """External body force per unit mass (n,2) [m/s^2], added to gravity until replaced."""

@@ -33,7 +33,7 @@ module cpdi_api
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
             cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
-            cpdi_set_state, cpdi_project
+            cpdi_set_state, cpdi_project, cpdi_set_bodies
 
 contains
 
@@ -223,11 +223,42 @@ contains
         s%diag = 0.0_wp
         s%timers = 0.0_wp
         s%smax = -1.0_wp
+        if (allocated(s%body)) deallocate (s%body)
         s%has_particles = .true.
       end if
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_particles
+
+  subroutine cpdi_set_bodies(handle, n, body, contact, friction, ierr, msg)
+    !! Body index of every particle (1-based) and the contact model: contact = 0, one
+    !! velocity field for all (single continuum); 1, Bardenhagen multi-velocity-field
+    !! contact between bodies with Coulomb coefficient friction.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    integer(c_int), intent(in) :: body(n)
+    integer(c_int), intent(in) :: contact
+    real(c_double), intent(in) :: friction
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before bodies')
+    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body needs one entry per particle')
+    if (st%ok() .and. any(body < 1)) call st%set(CPDI_ERR_INPUT, 'body indices start at 1')
+    if (st%ok() .and. (contact < 0 .or. contact > 1)) call st%set(CPDI_ERR_INPUT, 'contact is a flag: 0 or 1')
+    if (st%ok() .and. .not. (friction >= 0.0_wp .and. friction <= huge(1.0_wp))) &
+      call st%set(CPDI_ERR_INPUT, 'friction must be zero or positive and finite')
+    if (st%ok()) then
+      if (allocated(s%body)) deallocate (s%body)
+      allocate (s%body(n))
+      s%body = body
+      s%contact = contact == 1
+      s%friction = friction
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_bodies
 
   subroutine cpdi_set_state(handle, n, v, F, t, ierr, msg)
     !! Overwrite particle velocities, deformation gradients (4,n) and the clock, e.g. to
@@ -415,7 +446,8 @@ contains
 
   subroutine cpdi_get_diag(handle, diag, ierr, msg)
     !! diag = [t, dt, steps, kinetic, strain energy, momentum x, y, work of gravity,
-    !!         work of body forces, total mass, max signal speed, wall clamps last step]
+    !!         work of body forces, total mass, max signal speed, wall clamps last step,
+    !!         frictional work of contact, viscous dissipation]
     integer(c_int), intent(in) :: handle
     real(c_double), intent(out) :: diag(NDIAG)
     integer(c_int), intent(out) :: ierr

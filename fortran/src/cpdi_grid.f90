@@ -26,19 +26,20 @@ module cpdi_grid
     integer(ik) :: nnodes = 0             !! total nodes
     integer(ik) :: walls(4) = WALL_OPEN   !! left, right, bottom, top
     integer(ik) :: wall_node(4) = 0       !! node index (per axis) of each wall plane
-    real(wp), allocatable :: m(:)         !! nodal mass
-    real(wp), allocatable :: px(:), py(:) !! nodal momentum, then velocity at t^n
-    real(wp), allocatable :: fx(:), fy(:) !! nodal force
-    real(wp), allocatable :: vx(:), vy(:) !! nodal velocity at t^{n+1}
-    real(wp), allocatable :: mr(:)        !! mass of rigid particles at the node
-    real(wp), allocatable :: prx(:), pry(:) !! momentum of rigid particles at the node
-    real(wp), allocatable :: wsum(:)      !! work array (projection, contact)
+    integer(ik) :: nf = 0                 !! velocity fields (1, or one per body with contact)
+    real(wp), allocatable :: m(:, :)      !! nodal mass (node, field)
+    real(wp), allocatable :: px(:, :), py(:, :) !! nodal momentum, then velocity at t^n
+    real(wp), allocatable :: fx(:, :), fy(:, :) !! nodal force
+    real(wp), allocatable :: vx(:, :), vy(:, :) !! nodal velocity at t^{n+1}
+    real(wp), allocatable :: mr(:, :)     !! mass of rigid particles at the node
+    real(wp), allocatable :: prx(:, :), pry(:, :) !! momentum of rigid particles at the node
+    real(wp), allocatable :: gmx(:, :), gmy(:, :) !! mass gradient sum m_p grad S_ip (contact normals)
   contains
     procedure :: node_id => grid_node_id
     procedure :: node_x => grid_node_x
   end type grid_t
 
-  public :: grid_init, grid_clear, grid_apply_walls
+  public :: grid_init, grid_fields, grid_apply_walls
 
 contains
 
@@ -83,26 +84,28 @@ contains
     g%gorig = origin - GRID_PAD*h
     g%walls = walls
     g%wall_node = [GRID_PAD + 1, GRID_PAD + 1 + ncell(1), GRID_PAD + 1, GRID_PAD + 1 + ncell(2)]
-    call grid_free(g)
-    allocate (g%m(g%nnodes), g%px(g%nnodes), g%py(g%nnodes), g%fx(g%nnodes), g%fy(g%nnodes), &
-              g%vx(g%nnodes), g%vy(g%nnodes), g%mr(g%nnodes), g%prx(g%nnodes), g%pry(g%nnodes), &
-              g%wsum(g%nnodes), stat=ierr)
-    if (ierr /= 0) then
-      call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
-      return
-    end if
-    call grid_clear(g)
+    g%nf = 0
+    call grid_fields(g, 1_ik, st)
   end subroutine grid_init
 
-  subroutine grid_free(g)
-    !! Release node arrays if allocated.
+  subroutine grid_fields(g, nf, st)
+    !! (Re)allocate the nodal arrays for nf velocity fields (no-op if already so).
     type(grid_t), intent(inout) :: g
-    if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%wsum)
-  end subroutine grid_free
-
-  subroutine grid_clear(g)
-    !! Zero the accumulated nodal fields.
-    type(grid_t), intent(inout) :: g
+    integer(ik), intent(in) :: nf
+    type(status_t), intent(inout) :: st
+    integer :: ierr, n
+    if (g%nf == nf .and. allocated(g%m)) return
+    if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%gmx, g%gmy)
+    n = g%nnodes
+    allocate (g%m(n, nf), g%px(n, nf), g%py(n, nf), g%fx(n, nf), g%fy(n, nf), g%vx(n, nf), g%vy(n, nf), &
+              g%mr(n, nf), g%prx(n, nf), g%pry(n, nf), g%gmx(n, merge(nf, 0_ik, nf > 1)), &
+              g%gmy(n, merge(nf, 0_ik, nf > 1)), stat=ierr)
+    if (ierr /= 0) then
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
+      g%nf = 0
+      return
+    end if
+    g%nf = nf
     g%m = 0.0_wp
     g%px = 0.0_wp
     g%py = 0.0_wp
@@ -113,7 +116,7 @@ contains
     g%mr = 0.0_wp
     g%prx = 0.0_wp
     g%pry = 0.0_wp
-  end subroutine grid_clear
+  end subroutine grid_fields
 
   pure integer(ik) function grid_node_id(self, i, j)
     !! Linear index of node (i, j), both 1-based and padding included.
