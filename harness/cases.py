@@ -70,7 +70,8 @@ GEOMETRY = {
 
 PROBE = {
     "kind": Key("choice", "what to measure (defaults to the probe's name)",
-                choices=("front_x", "column_height", "displacement_x", "displacement_y")),
+                choices=("front_x", "column_height", "displacement_x", "displacement_y", "com_x", "com_y", "com_vx",
+                         "com_vy", "bottom", "top", "left", "right")),
     "material": Key("str", "material whose particles are probed (default: all)"),
     "point": Key("vec2", "initial position of the probed point (displacement probes)", "m"),
     "layer": Key("float", "thickness of the floor / wall layer (default: one cell)", "m", check=positive),
@@ -98,6 +99,9 @@ SCHEMA: dict[str, Key] = {
         "projection": Key("choice", "volumetric anti-locking projection of ln J increments and mean stress: "
                           "none, cell (cell-wise constant) or nodal (bilinear, banded LAPACK solve)",
                           choices=("none", "cell", "nodal"), default="none"),
+        "projection_stabilization": Key("float", "beta: the projected volumetric fields keep beta of each particle's "
+                                                 "own value, giving sub-cell (hourglass) motions a stiffness beta K",
+                                        default=0.0, check=in_range(0.0, 1.0)),
         "kinematics": Key("choice", "log: finite strain (Hencky); small: sym(F) - I",
                           choices=("log", "small"), default="log"),
         "domain_scaling": Key("bool", "Homel et al. (2016) CPDI domain scaling", default=False),
@@ -118,10 +122,13 @@ SCHEMA: dict[str, Key] = {
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
-    "contact": Key("table", "multi-velocity-field frictional contact (not in this build)", sub={
-        "enabled": Key("bool", "use Bardenhagen contact between bodies", default=False,
-                       check=lambda v: None if v is False else "contact is not available in this build"),
+    "contact": Key("table", "Bardenhagen multi-velocity-field frictional contact between contact groups", sub={
+        "enabled": Key("bool", "each contact group gets its own velocity field, with contact between them "
+                               "(false: one field for all, a single continuum)", default=False),
         "friction": Key("float", "Coulomb friction coefficient", default=0.0, check=nonneg),
+        "fullness": Key("float", "a node is in contact when the bodies fill this fraction of its support "
+                                 "(Bardenhagen volume constraint; 0 = any shared node)", default=0.9,
+                        check=in_range(0.0, 1.0)),
     }),
     "probes": Key("table", "case-specific outputs written to series.csv (name = {kind, ...})"),
 }
@@ -153,6 +160,8 @@ BODY = {
     "ppc": Key("int", "particles per cell per direction", default=2,
                check=lambda v: None if 1 <= v <= 8 else "must be between 1 and 8"),
     "velocity": Key("vec2", "initial velocity", "m/s", default=[0.0, 0.0]),
+    "contact_group": Key("int", "bodies with the same group share a velocity field under contact "
+                                "(default: each body its own)", check=lambda v: None if v >= 0 else "must be >= 0"),
 }
 
 

@@ -9,6 +9,8 @@
   (x < left wall + layer), plus half a particle spacing, measured from the floor.
 * ``displacement_x`` / ``displacement_y``: displacement of the particle that started
   nearest to ``point``.
+* ``com_x``, ``com_y``, ``com_vx``, ``com_vy``: centre of mass and its velocity.
+* ``bottom``, ``top``, ``left``, ``right``: extent of the particles (centre -/+ half a spacing).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ class ProbeSet:
         mats = [m["name"] for m in case["materials"]]
         self.spacing = min(self.h / b["ppc"] for b in case["bodies"])
         self.x0 = parts.x.copy()
+        self.mass = parts.mass
         self.masks = {}
         self.anchor = {}
         for name, p in self.specs.items():
@@ -43,13 +46,24 @@ class ProbeSet:
                 d = np.hypot(*(self.x0[cand] - np.asarray(p["point"])).T)
                 self.anchor[name] = int(cand[np.argmin(d)])
 
-    def evaluate(self, x: np.ndarray) -> dict[str, float]:
+    def evaluate(self, x: np.ndarray, v: np.ndarray | None = None) -> dict[str, float]:
         out = {}
         for name in self.names:
             p = self.specs[name]
             kind = p["kind"]
             layer = p.get("layer", self.h)
-            sel = x[self.masks[name]]
+            mask = self.masks[name]
+            sel = x[mask]
+            if kind.startswith("com_"):
+                w = self.mass[mask]
+                arr = sel if kind in ("com_x", "com_y") else v[mask]
+                out[name] = float(np.average(arr[:, 0 if kind.endswith("x") else 1], weights=w))
+                continue
+            if kind in ("bottom", "top", "left", "right"):
+                c = sel[:, 1] if kind in ("bottom", "top") else sel[:, 0]
+                lo = kind in ("bottom", "left")
+                out[name] = float(c.min() - 0.5 * self.spacing if lo else c.max() + 0.5 * self.spacing)
+                continue
             if kind == "front_x":
                 out[name] = front_x(sel, self.origin[1] + layer, self.spacing, p["min_count"]) \
                     + 0.5 * self.spacing - self.origin[0]

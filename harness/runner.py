@@ -23,7 +23,7 @@ from harness.seeding import ParticleSet, seed
 from harness.solver import CpdiError, Simulation, pressure
 
 SERIES_BASE = ["t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y", "gravity_work",
-               "body_force_work", "steps", "dt"]
+               "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt"]
 
 
 class RunFailed(RuntimeError):
@@ -44,9 +44,13 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     sim.set_grid(g["origin"], ncell, h, g["walls"])
     sim.set_materials(case["materials"])
     sim.set_particles(parts.x, parts.v, parts.mass, parts.vol, parts.r, parts.mat)
+    contact = case["contact"]
+    sim.set_bodies(parts.group, contact=contact["enabled"], friction=contact["friction"],
+                   fullness=contact["fullness"])
     sim.set_options(shape=s["shape"], update=s["update"], projection=s["projection"],
                     kinematics=s["kinematics"], domain_scaling=s["domain_scaling"], dt=s.get("dt"),
-                    cfl=s["cfl"], gravity=s["gravity"], damping=s["damping"], flip=s["flip"])
+                    cfl=s["cfl"], gravity=s["gravity"], damping=s["damping"], flip=s["flip"],
+                    projection_stabilization=s["projection_stabilization"])
     return sim, parts
 
 
@@ -98,7 +102,7 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True,
         d = sim.diagnostics()
         row = {c: d.get(c, 0.0) for c in SERIES_BASE}
         row["t"] = t
-        row.update(probes.evaluate(state["x"]))
+        row.update(probes.evaluate(state["x"], state["v"]))
         for c in columns:
             rows[c].append(row[c])
         if series is not None:

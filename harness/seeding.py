@@ -18,6 +18,7 @@ class ParticleSet:
     r: np.ndarray  # (n, 4) CPDI half-vectors [r1x, r1y, r2x, r2y]
     mat: np.ndarray  # (n,) 0-based material index
     body: np.ndarray  # (n,) 0-based body index
+    group: np.ndarray  # (n,) 0-based contact group (velocity field under contact)
 
     @property
     def n(self) -> int:
@@ -27,7 +28,7 @@ class ParticleSet:
 def _inside(geo: dict, pts: np.ndarray) -> np.ndarray:
     if geo["type"] == "rectangle":
         lo, hi = np.asarray(geo["min"]), np.asarray(geo["max"])
-        return np.all((pts >= lo) & (pts <= hi), axis=1)
+        return np.all((pts >= lo) & (pts < hi), axis=1)  # half-open: touching bodies share no particle
     c = np.asarray(geo["center"])
     rad = np.hypot(pts[:, 0] - c[0], pts[:, 1] - c[1])
     return (rad >= geo["r_inner"]) & (rad <= geo["r_outer"])
@@ -73,5 +74,9 @@ def seed(case: Case) -> ParticleSet:
         parts.append(dict(
             x=pts, v=np.tile(np.asarray(body["velocity"], float), (n, 1)), mass=mat["density"] * vol,
             vol=vol, r=np.tile([0.5 * d, 0.0, 0.0, 0.5 * d], (n, 1)),
-            mat=np.full(n, names.index(body["material"]), dtype=np.int32), body=np.full(n, ib, dtype=np.int32)))
-    return ParticleSet(**{k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+            mat=np.full(n, names.index(body["material"]), dtype=np.int32), body=np.full(n, ib, dtype=np.int32),
+            group=np.full(n, body.get("contact_group", ib), dtype=np.int32)))
+    out = ParticleSet(**{k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    _, out.group = np.unique(out.group, return_inverse=True)  # groups numbered 0..G-1
+    out.group = out.group.astype(np.int32)
+    return out

@@ -198,7 +198,7 @@ class Simulation:
     def set_options(self, *, shape: str = "cpdi", update: str = "musl", projection: str = "none",
                     kinematics: str = "log", domain_scaling: bool = False, dt: float | None = None,
                     cfl: float = 0.3, gravity: Sequence[float] = (0.0, 0.0), damping: float = 0.0,
-                    flip: float = 1.0, lcrit: float = 0.49999) -> None:
+                    flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0) -> None:
         """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it."""
         table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
                  ("kinematics", kinematics, KINEMATICS))
@@ -209,18 +209,20 @@ class Simulation:
             codes.append(allowed[value])
         iopt = np.array(codes + [int(bool(domain_scaling)), int(dt is not None)], dtype=np.int32)
         g = _f64(gravity, (2,), "gravity")
-        ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit], dtype=np.float64)
+        ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit,
+                         projection_stabilization], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
         self._shape = shape
 
-    def set_bodies(self, body, contact: bool = False, friction: float = 0.0) -> None:
+    def set_bodies(self, body, contact: bool = False, friction: float = 0.0, fullness: float = 0.9) -> None:
         """Body index (n,) 0-based of every particle; with contact each body gets its own
-        velocity field and Bardenhagen frictional contact acts between them."""
+        velocity field and Bardenhagen frictional contact acts between them, at nodes whose
+        support the bodies fill to at least `fullness` (fraction of a cell's area)."""
         b = np.asarray(body)
         if b.shape != (self._n,) or (b.size and (np.any(b < 0) or np.any(b != np.round(b)))):
             raise CpdiError(1, f"body must be ({self._n},) whole numbers >= 0, got shape {b.shape}")
         _call("cpdi_set_bodies", self._handle, (b.astype(np.int64) + 1).astype(np.int32), int(bool(contact)),
-              float(friction))
+              float(friction), float(fullness))
 
     def set_body_force(self, b) -> None:
         """External body force per unit mass (n,2) [m/s^2], added to gravity until replaced."""

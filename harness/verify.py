@@ -18,7 +18,10 @@ from harness import gate, provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
 REPO = Path(__file__).resolve().parent.parent
-CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front"]
+CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front",
+          "elastic_obstacle", "rigid_obstacle"]
+# Runnable with --only but not yet part of the gated set (see the issue notes for why).
+EXPERIMENTAL = ["sinking_block"]
 
 
 def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> list[CheckResult]:
@@ -82,9 +85,10 @@ def _stamp(quick: bool) -> str:
 def main(quick: bool = False, only: list[str] | None = None, out: Path | None = None, progress: bool = True,
          regen_gold: bool = False) -> int:
     names = CHECKS if not only else only
-    unknown = [n for n in names if n not in CHECKS]
+    unknown = [n for n in names if n not in CHECKS + EXPERIMENTAL]
     if unknown:
-        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)}", file=sys.stderr)
+        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)} "
+              f"(experimental: {', '.join(EXPERIMENTAL)})", file=sys.stderr)
         return 2
     if regen_gold:
         if only:

@@ -21,7 +21,7 @@ module cpdi_api
   private
 
   integer, parameter :: NIOPT = 6   !! shape, update, projection, kinematics, domain_scaling, fixed_dt
-  integer, parameter :: NROPT = 7   !! cfl, gx, gy, damping, dt, flip, lcrit
+  integer, parameter :: NROPT = 8   !! cfl, gx, gy, damping, dt, flip, lcrit, projection stabilisation
 
   type :: slot_t
     logical :: used = .false.
@@ -221,6 +221,7 @@ contains
         s%t = 0.0_wp
         s%steps = 0
         s%diag = 0.0_wp
+        s%diag(10) = sum(mass)
         s%timers = 0.0_wp
         s%smax = -1.0_wp
         if (allocated(s%body)) deallocate (s%body)
@@ -230,20 +231,23 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_set_particles
 
-  subroutine cpdi_set_bodies(handle, n, body, contact, friction, ierr, msg)
+  subroutine cpdi_set_bodies(handle, n, body, contact, friction, fullness, ierr, msg)
     !! Body index of every particle (1-based) and the contact model: contact = 0, one
     !! velocity field for all (single continuum); 1, Bardenhagen multi-velocity-field
-    !! contact between bodies with Coulomb coefficient friction.
+    !! contact between bodies with Coulomb coefficient friction, active at nodes whose
+    !! support the bodies fill to at least `fullness` (fraction of h^2).
     integer(c_int), intent(in) :: handle
     integer(c_int), intent(in) :: n
     integer(c_int), intent(in) :: body(n)
     integer(c_int), intent(in) :: contact
-    real(c_double), intent(in) :: friction
+    real(c_double), intent(in) :: friction, fullness
     integer(c_int), intent(out) :: ierr
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
+    if (st%ok() .and. .not. (fullness >= 0.0_wp .and. fullness <= 1.0_wp)) &
+      call st%set(CPDI_ERR_INPUT, 'contact fullness must lie in [0, 1] (fraction of a cell)')
     if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before bodies')
     if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body needs one entry per particle')
     if (st%ok() .and. any(body < 1)) call st%set(CPDI_ERR_INPUT, 'body indices start at 1')
@@ -256,6 +260,7 @@ contains
       s%body = body
       s%contact = contact == 1
       s%friction = friction
+      s%fullness = fullness
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_bodies
@@ -299,7 +304,7 @@ contains
   subroutine cpdi_set_options(handle, iopt, ropt, ierr, msg)
     !! iopt = [shape (0 mpm, 1 gimp, 2 cpdi), update (0 usl, 1 musl), projection,
     !!         kinematics (0 log, 1 small), domain_scaling (0/1), fixed_dt (0/1)]
-    !! ropt = [cfl, gravity_x, gravity_y, damping, dt, flip, lcrit]
+    !! ropt = [cfl, gravity_x, gravity_y, damping, dt, flip, lcrit, projection stabilisation beta]
     integer(c_int), intent(in) :: handle
     integer(c_int), intent(in) :: iopt(NIOPT)
     real(c_double), intent(in) :: ropt(NROPT)
@@ -331,6 +336,8 @@ contains
         call st%set(CPDI_ERR_INPUT, 'flip must lie in [0, 1]')
       else if (.not. (ropt(7) > 0.0_wp .and. ropt(7) <= 1.0_wp)) then
         call st%set(CPDI_ERR_INPUT, 'lcrit must lie in (0, 1] (fraction of the cell size)')
+      else if (.not. (ropt(8) >= 0.0_wp .and. ropt(8) <= 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'projection stabilisation beta must lie in [0, 1]')
       end if
     end if
     if (st%ok()) then
@@ -346,6 +353,7 @@ contains
       s%opt%dt = ropt(5)
       s%opt%flip = ropt(6)
       s%opt%lcrit = ropt(7)
+      s%opt%pstab = ropt(8)
       s%smax = -1.0_wp
     end if
     call finish(st, ierr, msg)

@@ -13,8 +13,12 @@ module cpdi_contact
   !! bodies in compression, and separating bodies are left free. The correction is
   !!   dv_c = -dv_n n - mu' dv_n t,   mu' = min(mu, |dv_t| / dv_n)   (Coulomb: stick if mu' < mu)
   !! and the frictional work m_b mu' dv_n (|dv_t| - mu' dv_n) is accumulated when slipping.
-  !! The step applies it to the integrated velocity v^{n+1} (and to the MUSL remap), so the
-  !! particles' FLIP increment carries the contact impulse.
+  !! The step applies it to the integrated velocity v^{n+1}, so the particles' FLIP
+  !! increment carries the contact impulse. Volume constraint (Bardenhagen et al. 2001): a
+  !! node is in contact only when the bodies' volumes fill its support,
+  !! sum_b V_i^b >= vfull (= fullness h^2) times the fraction of the node's hat function that
+  !! lies inside the domain (a node on a wall can only ever be half full); bodies sharing a
+  !! node across a gap do not touch.
   use cpdi_kinds, only: wp, ik
   use cpdi_grid, only: grid_t
   implicit none
@@ -24,15 +28,15 @@ module cpdi_contact
 
 contains
 
-  subroutine contact_correct(g, vx, vy, mtol, mu, rigidf, work)
+  subroutine contact_correct(g, vx, vy, mtol, mu, vfull, rigidf, work)
     !! Correct the field velocities vx, vy (node, field) in place; add frictional work to `work`.
     type(grid_t), intent(in) :: g
     real(wp), intent(inout) :: vx(:, :), vy(:, :)
-    real(wp), intent(in) :: mtol, mu
+    real(wp), intent(in) :: mtol, mu, vfull
     logical, intent(in) :: rigidf(:)
     real(wp), intent(inout) :: work
     integer(ik) :: k, f, nfm, frig
-    real(wp) :: msum, vcm(2), gs(2), nrm(2), nn, dv(2), dvn, dvt(2), tn, mup, dc(2)
+    real(wp) :: msum, vcm(2), gs(2), nrm(2), nn, dv(2), dvn, dvt(2), tn, mup, dc(2), vsum
 
     do k = 1, g%nnodes
       nfm = 0
@@ -40,7 +44,9 @@ contains
       vcm = 0.0_wp
       gs = 0.0_wp
       frig = 0
+      vsum = 0.0_wp
       do f = 1, g%nf
+        vsum = vsum + g%gv(k, f)
         if (g%m(k, f) > mtol) then
           nfm = nfm + 1
           msum = msum + g%m(k, f)
@@ -50,6 +56,7 @@ contains
         gs = gs + [g%gmx(k, f), g%gmy(k, f)]
       end do
       if (nfm < 2) cycle
+      if (vsum < vfull*inside_fraction(g, k)) cycle
       if (frig > 0) then
         vcm = [vx(k, frig), vy(k, frig)]
       else
@@ -84,4 +91,32 @@ contains
       end do
     end do
   end subroutine contact_correct
+  pure real(wp) function inside_fraction(g, k)
+    !! Fraction of node k's bilinear hat integral that lies inside the physical domain.
+    type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: k
+    real(wp) :: x(2), lo(2), hi(2)
+    integer :: a
+    x = g%node_x(k)
+    lo = g%origin
+    hi = g%origin + real(g%ncell, wp)*g%h
+    inside_fraction = 1.0_wp
+    do a = 1, 2
+      inside_fraction = inside_fraction*hat_part(x(a) - lo(a), g%h)*hat_part(hi(a) - x(a), g%h)
+    end do
+  end function inside_fraction
+
+  pure real(wp) function hat_part(d, h)
+    !! Share of a 1D hat of half-width h centred at distance d inside a boundary.
+    real(wp), intent(in) :: d, h
+    if (d >= h) then
+      hat_part = 1.0_wp
+    else if (d >= 0.0_wp) then
+      hat_part = 1.0_wp - 0.5_wp*(1.0_wp - d/h)**2
+    else if (d > -h) then
+      hat_part = 0.5_wp*(1.0_wp + d/h)**2
+    else
+      hat_part = 0.0_wp
+    end if
+  end function hat_part
 end module cpdi_contact

@@ -34,6 +34,7 @@ module cpdi_grid
     real(wp), allocatable :: mr(:, :)     !! mass of rigid particles at the node
     real(wp), allocatable :: prx(:, :), pry(:, :) !! momentum of rigid particles at the node
     real(wp), allocatable :: gmx(:, :), gmy(:, :) !! mass gradient sum m_p grad S_ip (contact normals)
+    real(wp), allocatable :: gv(:, :)     !! nodal volume sum S_ip V_p (contact fullness)
   contains
     procedure :: node_id => grid_node_id
     procedure :: node_x => grid_node_x
@@ -95,11 +96,11 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr, n
     if (g%nf == nf .and. allocated(g%m)) return
-    if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%gmx, g%gmy)
+    if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%gmx, g%gmy, g%gv)
     n = g%nnodes
     allocate (g%m(n, nf), g%px(n, nf), g%py(n, nf), g%fx(n, nf), g%fy(n, nf), g%vx(n, nf), g%vy(n, nf), &
               g%mr(n, nf), g%prx(n, nf), g%pry(n, nf), g%gmx(n, merge(nf, 0_ik, nf > 1)), &
-              g%gmy(n, merge(nf, 0_ik, nf > 1)), stat=ierr)
+              g%gmy(n, merge(nf, 0_ik, nf > 1)), g%gv(n, merge(nf, 0_ik, nf > 1)), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
       g%nf = 0

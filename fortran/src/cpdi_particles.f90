@@ -25,7 +25,7 @@ module cpdi_particles
     real(wp), allocatable :: bf(:, :)       !! external body force per unit mass [m/s^2] (2, n)
     real(wp), allocatable :: psi(:)         !! stored strain energy [J per m thickness]
     real(wp), allocatable :: jbar(:)        !! projected Jacobian (equals det F without projection)
-    real(wp), allocatable :: work(:, :)     !! per-particle scratch (2, n) for the projection
+    real(wp), allocatable :: work(:, :)     !! per-particle scratch (3, n) for the projection
     integer(ik), allocatable :: mat(:)      !! material index, 1-based
   end type particles_t
 
@@ -42,7 +42,7 @@ contains
     if (allocated(p%x)) deallocate (p%x, p%v, p%m, p%vol0, p%vol, p%F, p%L, p%sig, p%r0, p%r, &
                                     p%bf, p%psi, p%jbar, p%work, p%mat)
     allocate (p%x(2, n), p%v(2, n), p%m(n), p%vol0(n), p%vol(n), p%F(4, n), p%L(4, n), p%sig(4, n), &
-              p%r0(4, n), p%r(4, n), p%bf(2, n), p%psi(n), p%jbar(n), p%work(2, n), p%mat(n), stat=ierr)
+              p%r0(4, n), p%r(4, n), p%bf(2, n), p%psi(n), p%jbar(n), p%work(3, n), p%mat(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate particle storage; use fewer particles')
       p%n = 0

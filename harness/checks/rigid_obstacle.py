@@ -1,0 +1,61 @@
+"""Check `rigid_obstacle`: the seed paper's stiff bar (E = 10 GPa) and a rigid bar, struck by
+a collapsing water column (geometry of the elastic obstacle). The stiff bar's tip must stay
+below 1e-4 m, and in both runs the water must pass over the bar (5 % of it beyond the bar at
+the end) and reach the far wall (its right edge within one cell of the wall at some time)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from harness import cases, parallel, runner
+from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.problems import fsi
+
+NAME = "rigid_obstacle"
+REQUIREMENT = ("A stiff bar (E = 10 GPa) struck by the collapsing column moves less than 1e-4 m at its tip, and "
+               "the water passes over the bar (stiff and rigid) and reaches the far wall.")
+CASE = Path(__file__).resolve().parents[2] / "cases" / "rigid_obstacle.toml"
+WIDTH = 0.584
+
+
+def _run(cell: float, model: str, out: Path):
+    case = cases.load(CASE, [f"grid.cell={cell}", f'materials.1.model="{model}"'])
+    r = runner.run(case, out, progress=False)
+    water = r.parts.mat == 0
+    x = r.final["x"][water]
+    return {"t": r.series["t"], "tip": r.series["tip_dx"], "water_max_x": float(r.series["water_right"].max()),
+            "beyond_bar": float(np.mean(x[:, 0] > 0.304)), "summary": r.summary}
+
+
+def run(ctx: CheckContext) -> CheckResult:
+    res = CheckResult(NAME, REQUIREMENT)
+    cell = 0.0146 if ctx.quick else 0.01168
+    outs = parallel.pmap(_run, [(cell, "hencky", ctx.runs_dir / "stiff"), (cell, "rigid", ctx.runs_dir / "rigid")])
+    for name, out in zip(("stiff", "rigid"), outs, strict=True):
+        if isinstance(out, Exception):
+            raise RuntimeError(f"the {name}-bar run failed: {out}")
+        res.metrics[f"water_gap_to_far_wall_{name}"] = WIDTH - out["water_max_x"]
+        res.metrics[f"water_fraction_beyond_bar_{name}"] = out["beyond_bar"]
+        res.gates.append(Gate.at_most(f"water_gap_to_far_wall_{name}", WIDTH - out["water_max_x"], cell,
+                                      "the water's right edge comes within one cell of the far wall"))
+        res.gates.append(Gate.at_least(f"water_fraction_beyond_bar_{name}", out["beyond_bar"], 0.05,
+                                       "water has passed over the bar"))
+        s = out["summary"]
+        res.notes.append(f"{name} bar: {s['particles']} particles, {s['steps']} steps, {s['wall_s']:.0f} s wall.")
+    stiff = outs[0]
+    res.metrics["tip_max_abs_dx"] = float(np.abs(stiff["tip"]).max())
+    res.gates.insert(0, Gate.at_most("tip_max_abs_dx", res.metrics["tip_max_abs_dx"], 1e-4, "stiff bar"))
+    from harness import plots
+
+    plots.time_series(ctx.fig_dir / "rigid_obstacle_tip.png", stiff["t"], {"stiff bar (E = 10 GPa)": stiff["tip"]},
+                      xlabel="t [s]", ylabel="tip displacement u_x [m]", title="Stiff bar, top-left corner",
+                      annotate=f"max |u_x| = {res.metrics['tip_max_abs_dx']:.2e} m")
+    for name in ("stiff", "rigid"):
+        fsi.fsi_panels(ctx.fig_dir / f"rigid_obstacle_{name}.png",
+                       fsi.frames(ctx.runs_dir / name, (0.15, 0.25, 0.35, 0.4)), 0, (0, WIDTH), (0, 0.35),
+                       f"Water over the {name} bar")
+    res.figures += ["rigid_obstacle_tip.png", "rigid_obstacle_stiff.png", "rigid_obstacle_rigid.png"]
+    res.notes.insert(0, __doc__.split("\n\n", 1)[0].strip())
+    return res
