@@ -53,6 +53,11 @@ def _load_extension():
 _API = None
 
 
+def api_error():
+    """The exception class f2py raises for failed argument checks."""
+    return importlib.import_module("harness._cpdi").__cpdi_error
+
+
 def api():
     """The f2py module object (loaded on first use)."""
     global _API
@@ -62,7 +67,10 @@ def api():
 
 
 def _call(name: str, *args):
-    out = getattr(api(), name)(*args)
+    try:
+        out = getattr(api(), name)(*args)
+    except (ValueError, TypeError, OverflowError, api_error()) as exc:  # f2py's own argument checks
+        raise CpdiError(1, f"{name}: invalid arguments ({exc}); check shapes, types and counts") from None
     *values, ierr, msg = out
     if ierr != 0:
         text = msg.decode("ascii", "replace").strip() if isinstance(msg, bytes) else str(msg).strip()
@@ -246,6 +254,8 @@ class Simulation:
     # -- queries ------------------------------------------------------------------
     def state(self) -> dict[str, np.ndarray]:
         """Particle state: x, v (n,2); F, sigma, r (n,4); vol (n,)."""
+        if self._n < 1:
+            raise CpdiError(2, "no particles set; call set_particles first")
         x, v, F, sig, vol, r = _call("cpdi_get_state", self._handle, self._n)
         return {"x": x.T, "v": v.T, "F": F.T, "sigma": sig.T, "vol": vol, "r": r.T}
 
