@@ -15,7 +15,7 @@ APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
 CASE ?= cases/water_column.toml
 THREADS ?=
 
-.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold lint clean distclean help
+.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold memcheck lint clean distclean help
 
 help:
 	@echo "make test          bootstrap, build, run the test suite (Fortran + pytest)"
@@ -24,6 +24,7 @@ help:
 	@echo "make bench         performance benchmark -> reports/bench/"
 	@echo "make run CASE=cases/x.toml   run one case into runs/<case>/"
 	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
+	@echo "make memcheck      Fortran-only driver under AddressSanitizer + debug flags (leaks, invalid access)"
 
 # ---------------------------------------------------------------- bootstrap
 sysdeps:
@@ -85,6 +86,13 @@ run: build
 
 regen-gold: build
 	@$(PY) -m harness verify --regen-gold
+
+memcheck: venv
+	@test -f $(DEBUG_BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(DEBUG_BUILD) fortran \
+	  -Dfflags_profile=debug -Db_sanitize=address -Dbuildtype=debug >/dev/null
+	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(DEBUG_BUILD) cpdi_memcheck > $(DEBUG_BUILD)/compile.log 2>&1 || \
+	  { cat $(DEBUG_BUILD)/compile.log; exit 1; }
+	@ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 $(DEBUG_BUILD)/cpdi_memcheck
 
 lint: venv
 	@$(VENV)/bin/ruff check harness tests

@@ -91,6 +91,7 @@ contains
     integer(ik) :: ip
     character(len=200) :: buf
     real(wp) :: lp(2)
+    logical :: realloc
 
     if (.not. (s%has_grid .and. s%has_materials .and. s%has_particles)) then
       call st%set(CPDI_ERR_STATE, 'set the grid, the materials and the particles before stepping')
@@ -116,7 +117,10 @@ contains
     end if
     call prepare_fields(s, st)
     if (.not. st%ok()) return
-    if (s%sh%kind /= s%opt%shape .or. .not. allocated(s%sh%idx) .or. size(s%sh%w, 2) /= s%p%n) then
+    ! (Fortran does not short-circuit .or.: test allocation before asking for a size)
+    realloc = .not. allocated(s%sh%idx)
+    if (.not. realloc) realloc = s%sh%kind /= s%opt%shape .or. size(s%sh%w, 2) /= s%p%n
+    if (realloc) then
       call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
       if (.not. st%ok()) return
     end if

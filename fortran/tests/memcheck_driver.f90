@@ -1,0 +1,98 @@
+!> Fortran-only driver for `make memcheck`: a small water column with an elastic block in
+!> contact and the projection on, through the same API Python uses, plus the error paths.
+!> Built with -fsanitize=address and the debug flags; any invalid access or leak fails it.
+program memcheck_driver
+  use, intrinsic :: iso_c_binding, only: c_int, c_double
+  use cpdi_api
+  implicit none
+  integer(c_int) :: h, ierr, nsteps, n, i, j, k, nb
+  character(len=512) :: msg
+  real(c_double) :: t, dx
+  real(c_double), allocatable :: x(:, :), v(:, :), m(:), vol(:), r(:, :), xo(:, :), vo(:, :), f(:, :), s(:, :), &
+                                 volo(:), ro(:, :)
+  integer(c_int), allocatable :: mat(:), body(:)
+  real(c_double) :: props(8, 2)
+  integer :: failures
+
+  failures = 0
+  dx = 0.01_c_double
+  n = 0
+  nb = 0
+  allocate (x(2, 400), v(2, 400), m(400), vol(400), r(4, 400), mat(400), body(400))
+  do j = 1, 16
+    do i = 1, 10
+      n = n + 1
+      x(:, n) = [0.005_c_double + (i - 1)*dx, 0.005_c_double + (j - 1)*dx]
+      mat(n) = 1
+      body(n) = 1
+    end do
+  end do
+  do j = 1, 4
+    do i = 1, 4
+      n = n + 1
+      x(:, n) = [0.2_c_double + (i - 1)*dx, 0.005_c_double + (j - 1)*dx]
+      mat(n) = 2
+      body(n) = 2
+    end do
+  end do
+  v(:, 1:n) = 0.0_c_double
+  vol(1:n) = dx*dx
+  m(1:n) = merge(1000.0_c_double, 1200.0_c_double, mat(1:n) == 1)*vol(1:n)
+  do k = 1, n
+    r(:, k) = [0.5_c_double*dx, 0.0_c_double, 0.0_c_double, 0.5_c_double*dx]
+  end do
+  props = 0.0_c_double
+  props(:, 1) = [1000.0_c_double, 0.0_c_double, 0.0_c_double, 2.0e5_c_double, 1.0e-3_c_double, 0.0_c_double, &
+                 0.0_c_double, 1.0_c_double]
+  props(:, 2) = [1200.0_c_double, 1.0e6_c_double, 0.3_c_double, 0.0_c_double, 0.0_c_double, 0.0_c_double, &
+                 0.0_c_double, 0.0_c_double]
+
+  call cpdi_new(h, ierr, msg); call expect_ok('new')
+  call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.01_c_double, [1, 1, 1, 0], &
+                     ierr, msg); call expect_ok('grid')
+  call cpdi_set_materials(h, 2, [2_c_int, 1_c_int], props, ierr, msg); call expect_ok('materials')
+  call cpdi_set_particles(h, n, x(:, 1:n), v(:, 1:n), m(1:n), vol(1:n), r(:, 1:n), mat(1:n), ierr, msg)
+  call expect_ok('particles')
+  call cpdi_set_bodies(h, n, body(1:n), 1, 0.2_c_double, 0.9_c_double, ierr, msg); call expect_ok('bodies')
+  call cpdi_set_options(h, [2_c_int, 1_c_int, 1_c_int, 0_c_int, 1_c_int, 0_c_int], &
+                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
+                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options')
+  call cpdi_advance(h, 0.05_c_double, 200, nsteps, t, ierr, msg); call expect_ok('advance')
+  allocate (xo(2, n), vo(2, n), f(4, n), s(4, n), volo(n), ro(4, n))
+  call cpdi_get_state(h, n, xo, vo, f, s, volo, ro, ierr, msg); call expect_ok('state')
+  ! nodal projection path
+  call cpdi_set_options(h, [2_c_int, 1_c_int, 2_c_int, 0_c_int, 0_c_int, 0_c_int], &
+                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
+                         0.49999_c_double, 0.1_c_double], ierr, msg); call expect_ok('options nodal')
+  call cpdi_advance(h, 0.06_c_double, 50, nsteps, t, ierr, msg); call expect_ok('advance nodal')
+  ! error paths must return cleanly
+  call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.0_c_double, [1, 1, 1, 0], ierr, msg)
+  call expect_error('zero cell size')
+  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 1_c_int], &
+                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 1.0_c_double, 1.0_c_double, &
+                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options fixed dt')
+  call cpdi_advance(h, 1.0_c_double, 5, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
+  call cpdi_free(h, ierr, msg); call expect_ok('free')
+  call cpdi_advance(h, 1.0_c_double, 5, nsteps, t, ierr, msg); call expect_error('freed handle')
+  deallocate (x, v, m, vol, r, mat, body, xo, vo, f, s, volo, ro)
+  print '(a,i0,a)', 'memcheck driver: ', failures, ' failures'
+  if (failures > 0) call exit(1)
+
+contains
+
+  subroutine expect_ok(what)
+    character(len=*), intent(in) :: what
+    if (ierr /= 0) then
+      failures = failures + 1
+      print '(3a)', what, ': unexpected error: ', trim(msg)
+    end if
+  end subroutine expect_ok
+
+  subroutine expect_error(what)
+    character(len=*), intent(in) :: what
+    if (ierr == 0) then
+      failures = failures + 1
+      print '(2a)', what, ': expected an error, got none'
+    end if
+  end subroutine expect_error
+end program memcheck_driver
