@@ -332,18 +332,7 @@ contains
 
     alpha = s%opt%damping
     associate (g => s%g)
-      do f = 1, g%nf
-        do k = 1, g%nnodes
-          if (g%m(k, f) > s%mtol) then
-            rm = 1.0_wp/g%m(k, f)
-            g%px(k, f) = g%px(k, f)*rm
-            g%py(k, f) = g%py(k, f)*rm
-          else
-            g%px(k, f) = 0.0_wp
-            g%py(k, f) = 0.0_wp
-          end if
-        end do
-      end do
+      call momentum_to_velocity(g, s%mtol, g%px, g%py)
       if (s%any_rigid) call impose_rigid(g, g%px, g%py)
       ! Contact corrects the integrated velocity only: the FLIP increment v^{n+1} - v^n then
       ! carries the whole contact impulse to the particles (a correction of v^n would be lost
@@ -379,6 +368,28 @@ contains
       end if
     end associate
   end subroutine grid_update
+
+  subroutine momentum_to_velocity(g, mtol, qx, qy)
+    !! In place: nodal momentum (qx, qy) of every field -> velocity q/m; nodes lighter than
+    !! mtol carry no velocity.
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: mtol
+    real(wp), intent(inout) :: qx(:, :), qy(:, :)
+    integer(ik) :: k, f
+    real(wp) :: rm
+    do f = 1, g%nf
+      do k = 1, g%nnodes
+        if (g%m(k, f) > mtol) then
+          rm = 1.0_wp/g%m(k, f)
+          qx(k, f) = qx(k, f)*rm
+          qy(k, f) = qy(k, f)*rm
+        else
+          qx(k, f) = 0.0_wp
+          qy(k, f) = 0.0_wp
+        end if
+      end do
+    end do
+  end subroutine momentum_to_velocity
 
   subroutine impose_rigid(g, vx, vy)
     !! Nodes touched by rigid particles move with them (clamped body), field by field.
@@ -502,10 +513,10 @@ contains
     !! used with contact (see g2p).
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, a, f
-    real(wp) :: mvx, mvy, wk, rm
+    real(wp) :: mvx, mvy, wk
     associate (g => s%g, p => s%p, sh => s%sh)
-      g%px = 0.0_wp
-      g%py = 0.0_wp
+      g%vx = 0.0_wp
+      g%vy = 0.0_wp
       do ip = 1, p%n
         f = s%field(ip)
         mvx = p%m(ip)*p%v(1, ip)
@@ -513,22 +524,11 @@ contains
         do a = 1, sh%cnt(ip)
           k = sh%idx(a, ip)
           wk = sh%w(a, ip)
-          g%px(k, f) = g%px(k, f) + wk*mvx
-          g%py(k, f) = g%py(k, f) + wk*mvy
+          g%vx(k, f) = g%vx(k, f) + wk*mvx
+          g%vy(k, f) = g%vy(k, f) + wk*mvy
         end do
       end do
-      do f = 1, g%nf
-        do k = 1, g%nnodes
-          if (g%m(k, f) > s%mtol) then
-            rm = 1.0_wp/g%m(k, f)
-            g%vx(k, f) = g%px(k, f)*rm
-            g%vy(k, f) = g%py(k, f)*rm
-          else
-            g%vx(k, f) = 0.0_wp
-            g%vy(k, f) = 0.0_wp
-          end if
-        end do
-      end do
+      call momentum_to_velocity(g, s%mtol, g%vx, g%vy)
       if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
       do f = 1, g%nf
         call grid_apply_walls(g, g%vx(:, f), g%vy(:, f))
