@@ -6,16 +6,15 @@ module cpdi_api
   !! so several can coexist in one Python process. Nothing here stops the process.
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp, ik
-  use cpdi_status, only: status_t, MSG_LEN, CPDI_OK, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
+  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
                          CPDI_ERR_LAPACK
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
-  use cpdi_shape, only: shape_compute, shape_alloc, shape_slots, SHAPE_MPM, SHAPE_CPDI, &
-                        SHAPE_FAIL_NONE, SHAPE_FAIL_INVERTED
+  use cpdi_shape, only: shape_compute, SHAPE_MPM, SHAPE_CPDI
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domain
   use cpdi_projection, only: projection_alloc, project_scalar
-  use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress, &
+  use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
   implicit none
   private

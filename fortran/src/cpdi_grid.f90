@@ -53,7 +53,6 @@ contains
     integer(ik), intent(in) :: walls(4) !! wall kinds: left, right, bottom, top
     type(status_t), intent(inout) :: st
     character(len=160) :: buf
-    integer :: ierr
 
     if (.not. (h > 0.0_wp) .or. h > huge(1.0_wp)) then
       write (buf, '(a,es12.4,a)') 'grid cell size is ', h, '; it must be a positive finite length in m'

@@ -24,7 +24,7 @@ module cpdi_projection
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_LAPACK
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
-  use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI
+  use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP
   implicit none
   private
 

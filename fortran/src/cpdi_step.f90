@@ -9,14 +9,14 @@ module cpdi_step
   !! Diagnostics are accumulated inside the same loops; nothing is allocated per step.
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
-  use cpdi_status, only: status_t, CPDI_OK, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
+  use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
                          CPDI_ERR_OUTSIDE, CPDI_ERR_JACOBIAN, CPDI_ERR_DOMAIN, CPDI_ERR_CFL
   use cpdi_grid, only: grid_t, grid_apply_walls, grid_fields, WALL_OPEN
   use cpdi_contact, only: contact_correct
   use cpdi_particles, only: particles_t
-  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI, &
-                        SHAPE_FAIL_OUTSIDE, SHAPE_FAIL_INVERTED
-  use cpdi_materials, only: material_t, material_stress, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
+  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_CPDI, &
+                        SHAPE_FAIL_INVERTED
+  use cpdi_materials, only: material_t, material_stress, MAT_FLUID, KIN_LOG
   use cpdi_kinematics, only: det2, map_domain
   use cpdi_projection, only: projection_t, projection_alloc, project_scalar, PROJ_NONE
   implicit none
@@ -79,7 +79,7 @@ module cpdi_step
     real(wp) :: timers(NTIMER) = 0.0_wp
   end type sim_t
 
-  public :: sim_prepare, sim_step, sim_stable_dt, sim_refresh_stress
+  public :: sim_prepare, sim_step, sim_stable_dt
 
 contains
 
@@ -134,7 +134,7 @@ contains
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
-    if (s%smax < 0.0_wp) call sim_refresh_stress(s, st)
+    if (s%smax < 0.0_wp) call stress_update(s, st)   ! stress and signal speed of the current state
   end subroutine sim_prepare
 
   subroutine prepare_fields(s, st)
@@ -166,13 +166,6 @@ contains
     end if
     call grid_fields(s%g, nf, st)
   end subroutine prepare_fields
-
-  subroutine sim_refresh_stress(s, st)
-    !! Recompute stress, energy and signal speed from the current F (no time advance).
-    type(sim_t), intent(inout) :: s
-    type(status_t), intent(inout) :: st
-    call stress_update(s, st)
-  end subroutine sim_refresh_stress
 
   pure real(wp) function sim_stable_dt(s)
     !! Largest stable explicit step, h / max(c + |v|), and the viscous limit.
