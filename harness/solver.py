@@ -26,7 +26,7 @@ SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
               "viscous_dissipation")
-TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress")
+TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
                7: "cfl", 8: "lapack", 9: "handle", 10: "alloc"}
 
@@ -291,6 +291,14 @@ class Simulation:
         ns = SLOTS[self._shape]
         idx, w, gx, gy = _call("cpdi_get_shape", self._handle, self._n, ns)
         return idx.T - 1, w.T, gx.T, gy.T
+
+
+def threads(n: int = 0) -> int:
+    """OpenMP threads of the solver in this process: n > 0 sets them, 0 only asks. Results do
+    not depend on it (bitwise, see cpdi_schedule.f90)."""
+    if not isinstance(n, int) or n < 0:
+        raise CpdiError(1, f"threads must be a whole number >= 0 (0 asks), got {n!r}")
+    return int(_call("cpdi_threads", n))
 
 
 def log_strain(F, method: str = "closed") -> np.ndarray:

@@ -32,7 +32,7 @@ module cpdi_api
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
             cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
-            cpdi_set_state, cpdi_project, cpdi_set_bodies
+            cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
 
 contains
 
@@ -421,6 +421,23 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_stable_dt
 
+  subroutine cpdi_threads(nreq, nused, ierr, msg)
+    !! OpenMP threads of this process's solver: nreq > 0 sets them (omp_set_num_threads),
+    !! nreq = 0 only asks. nused is the number the next step will use (1 in a build
+    !! without OpenMP).
+    !$ use omp_lib, only: omp_set_num_threads, omp_get_max_threads
+    integer(c_int), intent(in) :: nreq
+    integer(c_int), intent(out) :: nused
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    if (nreq < 0) call st%set(CPDI_ERR_INPUT, 'the thread count must be >= 1 (or 0 to ask)')
+    !$ if (st%ok() .and. nreq > 0) call omp_set_num_threads(nreq)
+    nused = 1
+    !$ nused = omp_get_max_threads()
+    call finish(st, ierr, msg)
+  end subroutine cpdi_threads
+
   subroutine cpdi_get_state(handle, n, x, v, F, sig, vol, r, ierr, msg)
     !! Copy out particle positions, velocities, F (4,n), Cauchy stress (4,n)
     !! [sxx, syy, sxy, szz], current volumes and current domain vectors (4,n).
@@ -468,7 +485,7 @@ contains
   end subroutine cpdi_get_diag
 
   subroutine cpdi_get_timers(handle, timers, ierr, msg)
-    !! Seconds spent per phase: shape, P2G, grid, G2P, deformation, stress.
+    !! Seconds spent per phase: shape, P2G, grid, G2P, deformation, stress, projection.
     integer(c_int), intent(in) :: handle
     real(c_double), intent(out) :: timers(NTIMER)
     integer(c_int), intent(out) :: ierr
@@ -554,7 +571,11 @@ contains
     if (st%ok() .and. (mode < 1 .or. mode > 2)) call st%set(CPDI_ERR_INPUT, 'mode must be 1 (cell) or 2 (nodal)')
     if (st%ok() .and. .not. finite_all(val)) call st%set(CPDI_ERR_INPUT, 'val contains NaN or Inf')
     if (st%ok()) then
-      if (.not. allocated(s%proj%hd)) call projection_alloc(s%proj, s%g, st)
+      if (.not. allocated(s%proj%qc)) then
+        call projection_alloc(s%proj, s%g, s%p%n, st)
+      else if (size(s%proj%qc, 2) /= s%p%n .or. size(s%proj%hd) /= s%g%nnodes) then
+        call projection_alloc(s%proj, s%g, s%p%n, st)
+      end if
       if (st%ok()) call project_scalar(s%proj, mode, s%opt%shape, s%g, s%p, mask /= 0, val, st)
     end if
     call finish(st, ierr, msg)

@@ -20,11 +20,20 @@ module cpdi_projection
   !! Only particles in `mask` take part (fluids, and solids that opt in), so a cell shared
   !! with a non-participating solid is projected from the participating particles alone.
   !! The mass-weighted integral sum_p m_p theta_p is conserved exactly by both choices.
+  !!
+  !! The operator (quadrature cells, H and, for nodal, its Cholesky factor) depends only
+  !! on the configuration, so it is built once (`projection_setup`) and applied to several
+  !! fields (`projection_apply`): a step projects its volumetric strain increment and its
+  !! mean stress with the operator of the configuration at the start of the step, the one
+  !! its shape functions were formed in. The cell scatters run on OpenMP through
+  !! two-colour strips (cpdi_schedule), bitwise the same at any thread count; the nodal
+  !! assembly and solve are serial.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_LAPACK
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP
+  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range
   implicit none
   private
 
@@ -35,15 +44,27 @@ module cpdi_projection
   integer, parameter :: REFINE = 4                         !! iterative-refinement sweeps
 
   type, public :: projection_t
-    !! Work storage, sized once per grid (nothing is allocated while stepping).
-    real(wp), allocatable :: hd(:)       !! diagonal of H (cells) / lumped mass (nodes)
+    !! Operator and work storage, sized once per grid and particle count (nothing is
+    !! allocated while stepping, except the nodal band when the active set outgrows it).
+    integer(ik) :: mode = 0              !! PROJ_CELL or PROJ_NODAL of the current operator
+    real(wp), allocatable :: hd(:)       !! 1 / diagonal of H (cells) / lumped mass (nodes)
     real(wp), allocatable :: rhs(:)      !! int S^T theta dm, then alpha
-    real(wp), allocatable :: band(:, :)  !! banded H (nodal)
+    real(wp), allocatable :: res(:)      !! refinement correction (nodal)
+    real(wp), allocatable :: band(:, :)  !! banded Cholesky factor of H (nodal)
     integer(ik), allocatable :: act(:)   !! node -> active index (nodal)
     integer(ik), allocatable :: node(:)  !! active index -> node (nodal)
+    integer(ik), allocatable :: qc(:, :) !! cell of each quadrature point (4, n) (cell)
+    integer(ik), allocatable :: row(:)   !! first cell row of each particle (cell)
+    real(wp), allocatable :: xs(:, :)    !! positions the nodal operator was built at (2, n)
+    real(wp), allocatable :: rs(:, :)    !! domains the nodal operator was built at (4, n)
+    integer(ik) :: nq = 4                !! quadrature points per particle
+    integer(ik) :: na = 0                !! active nodes (nodal)
+    integer(ik) :: kd = 1                !! half band width (nodal)
+    real(wp) :: shift = 0.0_wp           !! diagonal shift of the factorisation (nodal)
+    type(strips_t) :: sp                 !! scatter colouring of the cell assembly
   end type projection_t
 
-  public :: projection_alloc, project_scalar, quadrature
+  public :: projection_alloc, projection_setup, projection_apply, project_scalar, quadrature
 
   interface
     subroutine dpbtrf(uplo, n, kd, ab, ldab, info)
@@ -65,15 +86,23 @@ module cpdi_projection
 
 contains
 
-  subroutine projection_alloc(pr, g, st)
-    !! Size the work arrays for grid g.
+  subroutine projection_alloc(pr, g, n, st)
+    !! Size the work arrays for grid g and n particles.
     type(projection_t), intent(inout) :: pr
     type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: n
     type(status_t), intent(inout) :: st
     integer :: ierr
-    if (allocated(pr%hd)) deallocate (pr%hd, pr%rhs, pr%act, pr%node)
-    allocate (pr%hd(g%nnodes), pr%rhs(g%nnodes), pr%act(g%nnodes), pr%node(g%nnodes), stat=ierr)
-    if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate projection storage')
+    if (allocated(pr%hd)) deallocate (pr%hd, pr%rhs, pr%res, pr%act, pr%node, pr%qc, pr%row)
+    if (allocated(pr%xs)) deallocate (pr%xs, pr%rs)
+    allocate (pr%hd(g%nnodes), pr%rhs(g%nnodes), pr%res(g%nnodes), pr%act(g%nnodes), pr%node(g%nnodes), &
+              pr%qc(4, n), pr%row(n), stat=ierr)
+    if (ierr /= 0) then
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate projection storage; use fewer particles')
+      return
+    end if
+    call strips_alloc(pr%sp, n, g%nn(2), st)
+    pr%mode = 0
   end subroutine projection_alloc
 
   pure subroutine quadrature(shape, x, r, r0, nq, xq, wq)
@@ -87,7 +116,8 @@ contains
     case (SHAPE_MPM)
       nq = 1
       xq(:, 1) = x
-      wq(1) = 1.0_wp
+      xq(:, 2:4) = 0.0_wp
+      wq = [1.0_wp, 0.0_wp, 0.0_wp, 0.0_wp]
       return
     case (SHAPE_GIMP)
       a = [abs(r0(1)) + abs(r0(3)), 0.0_wp]
@@ -106,18 +136,51 @@ contains
     wq = 0.25_wp
   end subroutine quadrature
 
-  pure integer(ik) function cell_of(g, x)
-    !! 1-based index of the padded-grid cell holding x (clamped to the grid).
+  pure subroutine cell_ij(g, x, i, j)
+    !! 0-based column and row of the padded-grid cell holding x (clamped to the grid).
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2)
-    integer(ik) :: i, j
-    i = min(max(int((x(1) - g%gorig(1))/g%h), 0), g%nn(1) - 2)
-    j = min(max(int((x(2) - g%gorig(2))/g%h), 0), g%nn(2) - 2)
-    cell_of = i + 1 + j*(g%nn(1) - 1)
-  end function cell_of
+    integer(ik), intent(out) :: i, j
+    real(wp) :: rh
+    rh = 1.0_wp/g%h
+    i = min(max(int((x(1) - g%gorig(1))*rh), 0), g%nn(1) - 2)
+    j = min(max(int((x(2) - g%gorig(2))*rh), 0), g%nn(2) - 2)
+  end subroutine cell_ij
+
+  subroutine projection_setup(pr, mode, shape, g, p, mask, st)
+    !! Build the operator of the current configuration for mode PROJ_CELL or PROJ_NODAL.
+    type(projection_t), intent(inout) :: pr
+    integer(ik), intent(in) :: mode, shape
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(in) :: p
+    logical, intent(in) :: mask(:)
+    type(status_t), intent(inout) :: st
+    pr%mode = mode
+    if (mode == PROJ_CELL) then
+      call setup_cell(pr, shape, g, p, mask)
+    else if (mode == PROJ_NODAL) then
+      call setup_nodal(pr, shape, g, p, mask, st)
+    end if
+  end subroutine projection_setup
+
+  subroutine projection_apply(pr, shape, g, p, mask, val, st)
+    !! Replace val(p) of the particles in mask by its projection with the current operator.
+    type(projection_t), intent(inout) :: pr
+    integer(ik), intent(in) :: shape
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(in) :: p
+    logical, intent(in) :: mask(:)
+    real(wp), intent(inout) :: val(:)
+    type(status_t), intent(inout) :: st
+    if (pr%mode == PROJ_CELL) then
+      call apply_cell(pr, p, mask, val)
+    else if (pr%mode == PROJ_NODAL) then
+      call apply_nodal(pr, shape, g, p, mask, val, st)
+    end if
+  end subroutine projection_apply
 
   subroutine project_scalar(pr, mode, shape, g, p, mask, val, st)
-    !! Replace val(p) of the particles in mask by its projection (mode PROJ_CELL or PROJ_NODAL).
+    !! Set up the operator of the current configuration and project val with it.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: mode, shape
     type(grid_t), intent(in) :: g
@@ -125,69 +188,140 @@ contains
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: val(:)
     type(status_t), intent(inout) :: st
-    if (mode == PROJ_CELL) then
-      call project_cell(pr, shape, g, p, mask, val)
-    else if (mode == PROJ_NODAL) then
-      call project_nodal(pr, shape, g, p, mask, val, st)
-    end if
+    call projection_setup(pr, mode, shape, g, p, mask, st)
+    if (st%ok()) call projection_apply(pr, shape, g, p, mask, val, st)
   end subroutine project_scalar
 
-  subroutine project_cell(pr, shape, g, p, mask, val)
+  subroutine setup_cell(pr, shape, g, p, mask)
+    !! Cell of every quadrature point, the strips of the scatter, and the cell masses.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: shape
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
-    real(wp), intent(inout) :: val(:)
-    integer(ik) :: ip, q, nq, c
-    real(wp) :: xq(2, 4), wq(4), mw, acc
-    pr%hd = 0.0_wp
-    pr%rhs = 0.0_wp
-    do ip = 1, p%n
-      if (.not. mask(ip)) cycle
-      call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
-      do q = 1, nq
-        c = cell_of(g, xq(:, q))
-        mw = p%m(ip)*wq(q)
-        pr%hd(c) = pr%hd(c) + mw
-        pr%rhs(c) = pr%rhs(c) + mw*val(ip)
+    integer(ik) :: c, lo, hi, ip, q, nq, i, j, imin, imax, span
+    real(wp) :: xq(2, 4), wq(4)
+    pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
+    span = 1
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, nq, i, j, imin, imax, xq, wq) &
+    !$omp reduction(max:span)
+    do c = 1, NCHUNK
+      call chunk_range(c, p%n, lo, hi)
+      do ip = lo, hi
+        call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
+        imin = huge(1_ik)
+        imax = 0
+        do q = 1, nq
+          call cell_ij(g, xq(:, q), i, j)
+          pr%qc(q, ip) = i + 1 + j*(g%nn(1) - 1)
+          imin = min(imin, j)
+          imax = max(imax, j)
+        end do
+        pr%row(ip) = imin
+        span = max(span, imax - imin + 1)
       end do
     end do
-    where (pr%hd > 0.0_wp) pr%rhs = pr%rhs/pr%hd
-    do ip = 1, p%n
-      if (.not. mask(ip)) cycle
-      call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
-      acc = 0.0_wp
-      do q = 1, nq
-        acc = acc + wq(q)*pr%rhs(cell_of(g, xq(:, q)))
-      end do
-      val(ip) = acc
+    !$omp end parallel do
+    call strips_build(pr%sp, pr%row, span)
+    call scatter_cell(pr, p, mask, pr%hd)
+    !$omp parallel do schedule(static) default(shared) private(c)
+    do c = 1, size(pr%hd)
+      if (pr%hd(c) > 0.0_wp) pr%hd(c) = 1.0_wp/pr%hd(c)   ! stored as 1 / mass
     end do
-  end subroutine project_cell
+    !$omp end parallel do
+  end subroutine setup_cell
 
-  subroutine project_nodal(pr, shape, g, p, mask, val, st)
+  subroutine scatter_cell(pr, p, mask, acc, val)
+    !! acc(c) = sum over quadrature points in cell c of w_q m_p (val_p if present), by
+    !! two-colour strips: bitwise the same at any thread count.
+    type(projection_t), intent(in) :: pr
+    type(particles_t), intent(in) :: p
+    logical, intent(in) :: mask(:)
+    real(wp), intent(inout) :: acc(:)
+    real(wp), intent(in), optional :: val(:)
+    integer(ik) :: colour, b, m, ip, q
+    real(wp) :: mw, wq
+    logical :: weighted
+    weighted = present(val)
+    wq = 1.0_wp/real(pr%nq, wp)
+    acc = 0.0_wp
+    do colour = 1, 2
+      !$omp parallel do schedule(dynamic, 1) default(shared) private(b, m, ip, q, mw)
+      do b = colour, pr%sp%nstrip, 2
+        do m = pr%sp%start(b), pr%sp%start(b + 1) - 1
+          ip = pr%sp%perm(m)
+          if (.not. mask(ip)) cycle
+          mw = p%m(ip)*wq
+          if (weighted) mw = mw*val(ip)
+          do q = 1, pr%nq
+            acc(pr%qc(q, ip)) = acc(pr%qc(q, ip)) + mw
+          end do
+        end do
+      end do
+      !$omp end parallel do
+    end do
+  end subroutine scatter_cell
+
+  subroutine apply_cell(pr, p, mask, val)
+    !! Mass-weighted cell averages of val, gathered back to the quadrature points.
+    type(projection_t), intent(inout) :: pr
+    type(particles_t), intent(in) :: p
+    logical, intent(in) :: mask(:)
+    real(wp), intent(inout) :: val(:)
+    integer(ik) :: c, lo, hi, ip, q
+    real(wp) :: acc, wq
+    call scatter_cell(pr, p, mask, pr%rhs, val)
+    wq = 1.0_wp/real(pr%nq, wp)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, acc)
+    do c = 1, NCHUNK
+      call chunk_range(c, p%n, lo, hi)
+      do ip = lo, hi
+        if (.not. mask(ip)) cycle
+        acc = 0.0_wp
+        do q = 1, pr%nq
+          acc = acc + wq*(pr%rhs(pr%qc(q, ip))*pr%hd(pr%qc(q, ip)))
+        end do
+        val(ip) = acc
+      end do
+    end do
+    !$omp end parallel do
+  end subroutine apply_cell
+
+  subroutine setup_nodal(pr, shape, g, p, mask, st)
     !! Consistent nodal projection: H_ij = sum_p m_p sum_q w_q N_i(x_q) N_j(x_q) on the
-    !! active nodes (numbered along the shorter grid axis to keep the band narrow), solved
-    !! by LAPACK's banded Cholesky (dpbtrf/dpbtrs). Point quadrature can leave H singular
-    !! on fields that vanish at all quadrature points; those fields do not change any
+    !! active nodes (numbered along the shorter grid axis to keep the band narrow), factored
+    !! by LAPACK's banded Cholesky (dpbtrf). Point quadrature can leave H singular on
+    !! fields that vanish at all quadrature points; those fields do not change any
     !! projected particle value. A relative shift eps = 1e-12 of the diagonal makes the
-    !! factorisation safe, and iterative refinement, alpha <- alpha + (H + eps I)^-1 eps alpha,
-    !! removes the shift's effect on the range of H.
+    !! factorisation safe, and iterative refinement in `apply_nodal` removes the shift's
+    !! effect on the range of H.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: shape
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
-    real(wp), intent(inout) :: val(:)
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip, q, nq, a, b, ka(4), na, kd, ia, ib, info, ierr, k, n1, n2, it
-    real(wp) :: xq(2, 4), wq(4), nv(4), mw, acc, shift
+    integer(ik) :: ip, q, nq, a, b, ka(4), na, kd, ia, ib, info, ierr, k, n1, n2
+    real(wp) :: xq(2, 4), wq(4), nv(4), mw
     logical :: xmajor
     character(len=120) :: buf
 
     n1 = g%nn(1)
     n2 = g%nn(2)
     xmajor = n1 <= n2        ! number nodes so the band width is the shorter row
+    ! the configuration of the operator, for the applications that follow
+    if (allocated(pr%xs)) then
+      if (size(pr%xs, 2) /= p%n) deallocate (pr%xs, pr%rs)
+    end if
+    if (.not. allocated(pr%xs)) then
+      allocate (pr%xs(2, p%n), pr%rs(4, p%n), stat=ierr)
+      if (ierr /= 0) then
+        call st%set(CPDI_ERR_ALLOC, 'could not allocate the nodal projection storage; use projection = "cell"')
+        return
+      end if
+    end if
+    pr%xs = p%x(:, 1:p%n)
+    pr%rs = p%r(:, 1:p%n)
     ! active nodes
     pr%act = 0
     pr%hd = 0.0_wp
@@ -208,6 +342,7 @@ contains
         pr%node(na) = b
       end if
     end do
+    pr%na = na
     if (na == 0) return
     kd = 0
     do ia = 1, na
@@ -215,6 +350,7 @@ contains
       kd = max(kd, maxval(pr%act(neighbours(k)), mask=pr%act(neighbours(k)) > 0) - ia)
     end do
     kd = max(kd, 1)
+    pr%kd = kd
     if (allocated(pr%band)) then
       if (size(pr%band, 1) < kd + 1 .or. size(pr%band, 2) < na) deallocate (pr%band)
     end if
@@ -226,7 +362,6 @@ contains
       end if
     end if
     pr%band(1:kd + 1, 1:na) = 0.0_wp
-    pr%rhs(1:na) = 0.0_wp
     do ip = 1, p%n
       if (.not. mask(ip)) cycle
       call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
@@ -236,7 +371,6 @@ contains
         do a = 1, 4
           ia = pr%act(ka(a))
           if (ia == 0) cycle          ! node reached with zero weight only
-          pr%rhs(ia) = pr%rhs(ia) + mw*nv(a)*val(ip)
           do b = 1, 4
             ib = pr%act(ka(b))
             if (ib < ia) cycle        ! also skips inactive (0) nodes
@@ -246,33 +380,13 @@ contains
         end do
       end do
     end do
-    shift = 1.0e-12_wp*maxval(pr%band(kd + 1, 1:na))
-    pr%band(kd + 1, 1:na) = pr%band(kd + 1, 1:na) + shift
+    pr%shift = 1.0e-12_wp*maxval(pr%band(kd + 1, 1:na))
+    pr%band(kd + 1, 1:na) = pr%band(kd + 1, 1:na) + pr%shift
     call dpbtrf('U', na, kd, pr%band, size(pr%band, 1), info)
-    if (info == 0) call dpbtrs('U', na, kd, 1, pr%band, size(pr%band, 1), pr%rhs, na, info)
-    do it = 1, REFINE
-      if (info /= 0) exit
-      pr%hd(1:na) = shift*pr%rhs(1:na)         ! residual of H alpha = b is eps alpha
-      call dpbtrs('U', na, kd, 1, pr%band, size(pr%band, 1), pr%hd, na, info)
-      pr%rhs(1:na) = pr%rhs(1:na) + pr%hd(1:na)
-    end do
     if (info /= 0) then
       write (buf, '(a,i0,a)') 'nodal projection: banded Cholesky failed (info = ', info, '); use projection = "cell"'
       call st%set(CPDI_ERR_LAPACK, trim(buf))
-      return
     end if
-    do ip = 1, p%n
-      if (.not. mask(ip)) cycle
-      call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
-      acc = 0.0_wp
-      do q = 1, nq
-        call corner_nodes(g, xq(:, q), ka, nv)
-        do a = 1, 4
-          if (pr%act(ka(a)) > 0) acc = acc + wq(q)*nv(a)*pr%rhs(pr%act(ka(a)))
-        end do
-      end do
-      val(ip) = acc
-    end do
 
   contains
 
@@ -300,7 +414,68 @@ contains
         end do
       end do
     end function neighbours
-  end subroutine project_nodal
+  end subroutine setup_nodal
+
+  subroutine apply_nodal(pr, shape, g, p, mask, val, st)
+    !! Solve (H + eps I) alpha = int S^T val dm with the stored factor, refine
+    !! (alpha <- alpha + (H + eps I)^-1 eps alpha, REFINE sweeps), and evaluate at the
+    !! quadrature points, all in the configuration the operator was built in.
+    type(projection_t), intent(inout) :: pr
+    integer(ik), intent(in) :: shape
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(in) :: p
+    logical, intent(in) :: mask(:)
+    real(wp), intent(inout) :: val(:)
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip, q, nq, a, ka(4), ia, info, na, it, c, lo, hi
+    real(wp) :: xq(2, 4), wq(4), nv(4), mw, acc
+    character(len=120) :: buf
+
+    na = pr%na
+    if (na == 0) return
+    pr%rhs(1:na) = 0.0_wp
+    do ip = 1, p%n
+      if (.not. mask(ip)) cycle
+      call quadrature(shape, pr%xs(:, ip), pr%rs(:, ip), p%r0(:, ip), nq, xq, wq)
+      do q = 1, nq
+        call corner_nodes(g, xq(:, q), ka, nv)
+        mw = p%m(ip)*wq(q)*val(ip)
+        do a = 1, 4
+          ia = pr%act(ka(a))
+          if (ia > 0) pr%rhs(ia) = pr%rhs(ia) + mw*nv(a)
+        end do
+      end do
+    end do
+    call dpbtrs('U', na, pr%kd, 1, pr%band, size(pr%band, 1), pr%rhs, na, info)
+    do it = 1, REFINE
+      if (info /= 0) exit
+      pr%res(1:na) = pr%shift*pr%rhs(1:na)      ! residual of H alpha = b is eps alpha
+      call dpbtrs('U', na, pr%kd, 1, pr%band, size(pr%band, 1), pr%res, na, info)
+      pr%rhs(1:na) = pr%rhs(1:na) + pr%res(1:na)
+    end do
+    if (info /= 0) then
+      write (buf, '(a,i0,a)') 'nodal projection: banded solve failed (info = ', info, '); use projection = "cell"'
+      call st%set(CPDI_ERR_LAPACK, trim(buf))
+      return
+    end if
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
+    do c = 1, NCHUNK
+      call chunk_range(c, p%n, lo, hi)
+      do ip = lo, hi
+        if (.not. mask(ip)) cycle
+        call quadrature(shape, pr%xs(:, ip), pr%rs(:, ip), p%r0(:, ip), nq, xq, wq)
+        acc = 0.0_wp
+        do q = 1, nq
+          call corner_nodes(g, xq(:, q), ka, nv)
+          do a = 1, 4
+            if (pr%act(ka(a)) > 0) acc = acc + wq(q)*nv(a)*pr%rhs(pr%act(ka(a)))
+          end do
+        end do
+        val(ip) = acc
+      end do
+    end do
+    !$omp end parallel do
+  end subroutine apply_nodal
 
   pure subroutine corner_nodes(g, x, k, nv)
     !! The 4 nodes of the cell holding x and their bilinear values.

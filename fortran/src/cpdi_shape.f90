@@ -15,6 +15,7 @@ module cpdi_shape
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
+  use cpdi_schedule, only: NCHUNK, chunk_range
   implicit none
   private
 
@@ -32,6 +33,8 @@ module cpdi_shape
     integer(ik) :: ns = 4
     integer(ik), allocatable :: idx(:, :)
     integer(ik), allocatable :: cnt(:)     !! slots in use per particle
+    integer(ik), allocatable :: row(:)     !! lowest node row of each stencil (0-based)
+    integer(ik) :: span = 1                !! tallest stencil: last minus first node row
     real(wp), allocatable :: w(:, :), gx(:, :), gy(:, :)
   end type shape_t
 
@@ -60,9 +63,13 @@ contains
     integer :: ierr
     sh%kind = kind
     sh%ns = shape_slots(kind)
-    if (allocated(sh%idx)) deallocate (sh%idx, sh%cnt, sh%w, sh%gx, sh%gy)
-    allocate (sh%idx(sh%ns, n), sh%cnt(n), sh%w(sh%ns, n), sh%gx(sh%ns, n), sh%gy(sh%ns, n), stat=ierr)
-    if (ierr == 0) sh%cnt = sh%ns
+    if (allocated(sh%idx)) deallocate (sh%idx, sh%cnt, sh%row, sh%w, sh%gx, sh%gy)
+    allocate (sh%idx(sh%ns, n), sh%cnt(n), sh%row(n), sh%w(sh%ns, n), sh%gx(sh%ns, n), sh%gy(sh%ns, n), &
+              stat=ierr)
+    if (ierr == 0) then
+      sh%cnt = sh%ns
+      sh%row = 0
+    end if
     if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate interpolation storage; use fewer particles')
   end subroutine shape_alloc
 
@@ -114,17 +121,18 @@ contains
     nvals = [(1.0_wp - xi)*(1.0_wp - eta), xi*(1.0_wp - eta), (1.0_wp - xi)*eta, xi*eta]
   end subroutine bilinear
 
-  pure subroutine shape_mpm_one(g, x, k, w, gx, gy, fail)
-    !! Linear MPM weights at one particle.
+  pure subroutine shape_mpm_one(g, x, k, w, gx, gy, c0, fail)
+    !! Linear MPM weights at one particle; c0 is the stencil's first node row.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2)
     integer(ik), intent(out) :: k(4)
     real(wp), intent(out) :: w(4), gx(4), gy(4)
-    integer(ik), intent(out) :: fail
+    integer(ik), intent(out) :: c0, fail
     real(wp) :: xi, eta, rh
     logical :: ok
     call bilinear(g, x, k, w, ok)
     fail = SHAPE_FAIL_NONE
+    c0 = 0
     if (.not. ok) then
       fail = SHAPE_FAIL_OUTSIDE
       gx = 0.0_wp
@@ -135,23 +143,26 @@ contains
     xi = (x(1) - g%gorig(1))*rh
     xi = xi - aint(xi)
     eta = (x(2) - g%gorig(2))*rh
+    c0 = (k(1) - 1)/g%nn(1)      ! exactly the row bilinear chose
     eta = eta - aint(eta)
     gx = [-(1.0_wp - eta), (1.0_wp - eta), -eta, eta]*rh
     gy = [-(1.0_wp - xi), -xi, (1.0_wp - xi), xi]*rh
   end subroutine shape_mpm_one
 
-  pure subroutine shape_gimp_one(g, x, lp, k, w, gx, gy, fail)
-    !! uGIMP weights at one particle with half-widths lp(2).
+  pure subroutine shape_gimp_one(g, x, lp, k, w, gx, gy, c0, fail)
+    !! uGIMP weights at one particle with half-widths lp(2); c0 is the stencil's first
+    !! node row.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2), lp(2)
     integer(ik), intent(out) :: k(9)
     real(wp), intent(out) :: w(9), gx(9), gy(9)
-    integer(ik), intent(out) :: fail
+    integer(ik), intent(out) :: c0, fail
     real(wp) :: sx(3), dsx(3), sy(3), dsy(3), s1, s2
     integer(ik) :: ci, cj, a, b, slot
     s1 = (x(1) - g%gorig(1))/g%h
     s2 = (x(2) - g%gorig(2))/g%h
     fail = SHAPE_FAIL_NONE
+    c0 = 0
     if (.not. (s1 >= 1.0_wp .and. s2 >= 1.0_wp .and. s1 < real(g%nn(1) - 2, wp) &
                .and. s2 < real(g%nn(2) - 2, wp))) then
       fail = SHAPE_FAIL_OUTSIDE
@@ -163,6 +174,7 @@ contains
     end if
     ci = nint(s1, ik)   ! nearest node, 0-based
     cj = nint(s2, ik)
+    c0 = cj - 1
     do a = 1, 3
       call gimp_1d(x(1) - (g%gorig(1) + real(ci + a - 2, wp)*g%h), lp(1), g%h, sx(a), dsx(a))
       call gimp_1d(x(2) - (g%gorig(2) + real(cj + a - 2, wp)*g%h), lp(2), g%h, sy(a), dsy(a))
@@ -179,25 +191,25 @@ contains
     end do
   end subroutine shape_gimp_one
 
-  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, cnt, fail)
-    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y].
+  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, cnt, c0, span, fail)
+    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y]; c0 and
+    !! span are the first node row of the stencil and its height minus one.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2), r(4)
     integer(ik), intent(out) :: k(16)
     real(wp), intent(out) :: w(16), gx(16), gy(16)
-    integer(ik), intent(out) :: cnt, fail
-    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4, 4), ga(2), gb(2)
-    integer(ik) :: c, kk(4, 4), s0, i0(4), j0(4), bi, bj, a, li, lj, base
-    logical :: ok, inside
+    integer(ik), intent(out) :: cnt, c0, span, fail
+    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su(4), sv(4), u, v, t
+    real(wp) :: hx(3), hy(3), gcx, gcy
+    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, base, nn1
     fail = SHAPE_FAIL_NONE
     cnt = 16
+    c0 = 0
+    span = 1
     cross = r(1)*r(4) - r(2)*r(3)
     if (.not. (cross > 0.0_wp)) then
       fail = SHAPE_FAIL_INVERTED
-      k = 1
-      w = 0.0_wp
-      gx = 0.0_wp
-      gy = 0.0_wp
+      call clear(k, w, gx, gy)
       return
     end if
     rv = 1.0_wp/(4.0_wp*cross)              ! 1 / V_p
@@ -211,89 +223,133 @@ contains
     gc(:, 2) = gb
     gc(:, 3) = -ga
     gc(:, 4) = -gb
-    inside = .true.
+    rh = 1.0_wp/g%h
+    nn1 = g%nn(1)
+    ! corner cells, with no integer division (this is the hot path)
     do c = 1, 4
-      call bilinear(g, xc(:, c), kk(:, c), nv(:, c), ok)
-      if (.not. ok) then
+      su(c) = (xc(1, c) - g%gorig(1))*rh
+      sv(c) = (xc(2, c) - g%gorig(2))*rh
+      if (.not. (su(c) >= 0.0_wp .and. sv(c) >= 0.0_wp .and. su(c) < real(nn1 - 1, wp) &
+                 .and. sv(c) < real(g%nn(2) - 1, wp))) then
         fail = SHAPE_FAIL_OUTSIDE
-        inside = .false.
+        call clear(k, w, gx, gy)
+        return
       end if
-      i0(c) = mod(kk(1, c) - 1, g%nn(1))     ! 0-based lower-left node of the corner's cell
-      j0(c) = (kk(1, c) - 1)/g%nn(1)
+      i0(c) = int(su(c), ik)
+      j0(c) = int(sv(c), ik)
     end do
-    bi = minval(i0)
-    bj = minval(j0)
-    if (inside .and. maxval(i0) - bi <= 1 .and. maxval(j0) - bj <= 1) then
-      ! all corners in a 2x2-cell block: merge into the 3x3 node stencil
+    bi = min(i0(1), i0(2), i0(3), i0(4))
+    bj = min(j0(1), j0(2), j0(3), j0(4))
+    c0 = bj
+    span = max(j0(1), j0(2), j0(3), j0(4)) + 1 - bj
+    if (span <= 2 .and. max(i0(1), i0(2), i0(3), i0(4)) - bi <= 1) then
+      ! All corners in a 2x2-cell block: merge into the 3x3 node stencil. Corner c's
+      ! bilinear values there are the outer product of the 1D hats X(l) = max(0, 1 - |u - l|),
+      ! u = its local coordinate in [0, 2), and likewise Y: w = 1/4 sum_c X (x) Y,
+      ! grad = sum_c g_c X (x) Y, a fixed 4 x 9 loop with no indexing.
       cnt = 9
+      base = bi + 1 + bj*nn1
+      do lj = 0, 2
+        do li = 0, 2
+          k(1 + li + 3*lj) = base + li + lj*nn1
+        end do
+      end do
       w(1:9) = 0.0_wp
       gx(1:9) = 0.0_wp
       gy(1:9) = 0.0_wp
-      base = bi + 1 + bj*g%nn(1)
-      do lj = 0, 2
-        do li = 0, 2
-          k(1 + li + 3*lj) = base + li + lj*g%nn(1)
-        end do
-      end do
       do c = 1, 4
-        do a = 1, 4
-          li = i0(c) - bi + mod(a - 1, 2)
-          lj = j0(c) - bj + (a - 1)/2
-          s0 = 1 + li + 3*lj
-          w(s0) = w(s0) + 0.25_wp*nv(a, c)
-          gx(s0) = gx(s0) + nv(a, c)*gc(1, c)
-          gy(s0) = gy(s0) + nv(a, c)*gc(2, c)
+        u = su(c) - real(bi, wp)
+        v = sv(c) - real(bj, wp)
+        hx(1) = max(0.0_wp, 1.0_wp - u)
+        hx(2) = max(0.0_wp, 1.0_wp - abs(u - 1.0_wp))
+        hx(3) = max(0.0_wp, u - 1.0_wp)
+        hy(1) = max(0.0_wp, 1.0_wp - v)
+        hy(2) = max(0.0_wp, 1.0_wp - abs(v - 1.0_wp))
+        hy(3) = max(0.0_wp, v - 1.0_wp)
+        gcx = gc(1, c)
+        gcy = gc(2, c)
+        do lj = 1, 3
+          do li = 1, 3
+            t = hx(li)*hy(lj)
+            w(li + 3*lj - 3) = w(li + 3*lj - 3) + 0.25_wp*t
+            gx(li + 3*lj - 3) = gx(li + 3*lj - 3) + gcx*t
+            gy(li + 3*lj - 3) = gy(li + 3*lj - 3) + gcy*t
+          end do
         end do
       end do
     else
       do c = 1, 4
+        u = su(c) - real(i0(c), wp)
+        v = sv(c) - real(j0(c), wp)
+        nv = [(1.0_wp - u)*(1.0_wp - v), u*(1.0_wp - v), (1.0_wp - u)*v, u*v]
         s0 = 4*(c - 1)
-        k(s0 + 1:s0 + 4) = kk(:, c)
-        w(s0 + 1:s0 + 4) = 0.25_wp*nv(:, c)
-        gx(s0 + 1:s0 + 4) = nv(:, c)*gc(1, c)
-        gy(s0 + 1:s0 + 4) = nv(:, c)*gc(2, c)
+        base = i0(c) + 1 + j0(c)*nn1
+        k(s0 + 1:s0 + 4) = [base, base + 1, base + nn1, base + nn1 + 1]
+        w(s0 + 1:s0 + 4) = 0.25_wp*nv
+        gx(s0 + 1:s0 + 4) = nv*gc(1, c)
+        gy(s0 + 1:s0 + 4) = nv*gc(2, c)
       end do
     end if
   end subroutine shape_cpdi_one
 
+  pure subroutine clear(k, w, gx, gy)
+    !! Neutral slots of a particle whose weights could not be formed.
+    integer(ik), intent(out) :: k(:)
+    real(wp), intent(out) :: w(:), gx(:), gy(:)
+    k = 1
+    w = 0.0_wp
+    gx = 0.0_wp
+    gy = 0.0_wp
+  end subroutine clear
+
   subroutine shape_compute(g, p, sh, bad, fail)
-    !! Weights of every particle. On failure, `bad` is the first failing particle and
-    !! `fail` its SHAPE_FAIL_* cause; otherwise bad = 0.
+    !! Weights of every particle (OpenMP over fixed particle blocks). On failure, `bad` is
+    !! the lowest failing particle and `fail` its SHAPE_FAIL_* cause; otherwise bad = 0.
+    !! Also sets each stencil's first node row and the tallest span (for the strips).
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     type(shape_t), intent(inout) :: sh
     integer(ik), intent(out) :: bad, fail
-    integer(ik) :: ip, f
+    integer(ik) :: ip, f, c, lo, hi, span, sp, cbad(NCHUNK), cfail(NCHUNK)
     real(wp) :: lp(2)
+    span = 1
+    cbad = 0
+    cfail = SHAPE_FAIL_NONE
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp) reduction(max:span)
+    do c = 1, NCHUNK
+      call chunk_range(c, p%n, lo, hi)
+      do ip = lo, hi
+        select case (sh%kind)
+        case (SHAPE_CPDI)
+          call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), &
+                              sh%gy(:, ip), sh%cnt(ip), sh%row(ip), sp, f)
+        case (SHAPE_GIMP)
+          lp = [abs(p%r0(1, ip)) + abs(p%r0(3, ip)), abs(p%r0(2, ip)) + abs(p%r0(4, ip))]
+          call shape_gimp_one(g, p%x(:, ip), lp, sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
+                              sh%row(ip), f)
+          sp = 2
+        case default
+          call shape_mpm_one(g, p%x(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
+                             sh%row(ip), f)
+          sp = 1
+        end select
+        span = max(span, sp)
+        if (f /= SHAPE_FAIL_NONE .and. cbad(c) == 0) then
+          cbad(c) = ip
+          cfail(c) = f
+        end if
+      end do
+    end do
+    !$omp end parallel do
+    sh%span = span
     bad = 0
     fail = SHAPE_FAIL_NONE
-    select case (sh%kind)
-    case (SHAPE_GIMP)
-      do ip = 1, p%n
-        lp = [abs(p%r0(1, ip)) + abs(p%r0(3, ip)), abs(p%r0(2, ip)) + abs(p%r0(4, ip))]
-        call shape_gimp_one(g, p%x(:, ip), lp, sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), f)
-        if (f /= SHAPE_FAIL_NONE .and. bad == 0) then
-          bad = ip
-          fail = f
-        end if
-      end do
-    case (SHAPE_CPDI)
-      do ip = 1, p%n
-        call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
-                            sh%cnt(ip), f)
-        if (f /= SHAPE_FAIL_NONE .and. bad == 0) then
-          bad = ip
-          fail = f
-        end if
-      end do
-    case default
-      do ip = 1, p%n
-        call shape_mpm_one(g, p%x(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), f)
-        if (f /= SHAPE_FAIL_NONE .and. bad == 0) then
-          bad = ip
-          fail = f
-        end if
-      end do
-    end select
+    do c = 1, NCHUNK
+      if (cbad(c) /= 0) then
+        bad = cbad(c)
+        fail = cfail(c)
+        exit
+      end if
+    end do
   end subroutine shape_compute
 end module cpdi_shape

@@ -7,6 +7,11 @@ module cpdi_step
   !! on J and the rate D only, and an accumulated total shear would distort (and
   !! eventually invert) their CPDI domains without physical meaning.
   !! Diagnostics are accumulated inside the same loops; nothing is allocated per step.
+  !!
+  !! OpenMP: every particle loop runs over the fixed blocks of cpdi_schedule (gathers,
+  !! reductions summed block by block in a fixed order) and every scatter to the grid over
+  !! its two-colour strips, so a run gives the same bits at any thread count. Node loops
+  !! are plain parallel loops. Contact and the walls are serial (they touch few nodes).
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
@@ -16,9 +21,10 @@ module cpdi_step
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_CPDI, &
                         SHAPE_FAIL_INVERTED
+  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range
   use cpdi_materials, only: material_t, material_stress, MAT_FLUID, KIN_LOG
   use cpdi_kinematics, only: det2, map_domain
-  use cpdi_projection, only: projection_t, projection_alloc, project_scalar, PROJ_NONE
+  use cpdi_projection, only: projection_t, projection_alloc, projection_setup, projection_apply, PROJ_NONE
   implicit none
   private
 
@@ -30,8 +36,9 @@ module cpdi_step
   !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
   !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
   !! 14 viscous dissipation
-  integer(ik), parameter, public :: NTIMER = 6
-  !! timers [s]: 1 shape, 2 P2G, 3 grid, 4 G2P, 5 F and domains, 6 stress
+  integer(ik), parameter, public :: NTIMER = 7
+  !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
+  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress)
 
   type, public :: options_t
     integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
@@ -77,6 +84,10 @@ module cpdi_step
     real(wp) :: visc_dt = huge(1.0_wp)       !! viscous time-step limit
     real(wp) :: diag(NDIAG) = 0.0_wp
     real(wp) :: timers(NTIMER) = 0.0_wp
+    type(strips_t) :: sp                     !! scatter colouring of the particles (per step)
+    real(wp) :: red(6, NCHUNK) = 0.0_wp      !! per-block partial sums of the reductions
+    integer(ik) :: cbad(NCHUNK) = 0          !! per-block first failing particle
+    real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
   end type sim_t
 
   public :: sim_prepare, sim_step, sim_stable_dt
@@ -124,9 +135,16 @@ contains
       call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
       if (.not. st%ok()) return
     end if
+    realloc = .not. allocated(s%sp%perm)
+    if (.not. realloc) realloc = size(s%sp%perm) /= s%p%n .or. size(s%sp%start) /= s%g%nn(2) + 2
+    if (realloc) then
+      call strips_alloc(s%sp, s%p%n, s%g%nn(2), st)
+      if (.not. st%ok()) return
+    end if
     if (s%opt%projection /= PROJ_NONE) then
-      if (.not. allocated(s%proj%hd)) call projection_alloc(s%proj, s%g, st)
-      if (size(s%proj%hd) /= s%g%nnodes) call projection_alloc(s%proj, s%g, st)
+      realloc = .not. allocated(s%proj%hd)
+      if (.not. realloc) realloc = size(s%proj%hd) /= s%g%nnodes .or. size(s%proj%qc, 2) /= s%p%n
+      if (realloc) call projection_alloc(s%proj, s%g, s%p%n, st)
       if (.not. st%ok()) return
       if (allocated(s%pmask)) deallocate (s%pmask)
       allocate (s%pmask(s%p%n))
@@ -134,7 +152,12 @@ contains
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
-    if (s%smax < 0.0_wp) call stress_update(s, st)   ! stress and signal speed of the current state
+    if (s%smax < 0.0_wp) then   ! stress and signal speed of the current state
+      if (s%opt%projection /= PROJ_NONE) &
+        call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
+      if (st%ok()) call stress_update(s, st)
+      if (st%ok() .and. s%opt%projection /= PROJ_NONE) call project_mean_stress(s, st)
+    end if
   end subroutine sim_prepare
 
   subroutine prepare_fields(s, st)
@@ -164,7 +187,7 @@ contains
         s%field_rigid(b) = all(pack(s%rigid(s%p%mat), s%body == b)) .and. any(s%body == b)
       end do
     end if
-    call grid_fields(s%g, nf, st)
+    call grid_fields(s%g, nf, s%any_rigid, st)
   end subroutine prepare_fields
 
   pure real(wp) function sim_stable_dt(s)
@@ -197,6 +220,7 @@ contains
     integer(ik) :: bad, fail
     integer(int64) :: t0
     character(len=300) :: buf
+    logical :: proj
 
     dtc = sim_stable_dt(s)
     if (s%opt%fixed_dt == 1) then
@@ -215,10 +239,10 @@ contains
       call st%set(CPDI_ERR_STATE, 'time step is zero; check material moduli and densities')
       return
     end if
+    proj = s%opt%projection /= PROJ_NONE
 
     call tic(t0)
     call shape_compute(s%g, s%p, s%sh, bad, fail)
-    call toc(s, 1, t0)
     if (bad /= 0) then
       if (fail == SHAPE_FAIL_INVERTED) then
         write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
@@ -232,6 +256,13 @@ contains
       end if
       return
     end if
+    call strips_build(s%sp, s%sh%row, s%sh%span)
+    call toc(s, 1, t0)
+    if (proj) then   ! the operator of this step's configuration, for both projections
+      call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
+      call toc(s, 7, t0)
+      if (.not. st%ok()) return
+    end if
 
     call p2g(s)
     call toc(s, 2, t0)
@@ -242,9 +273,22 @@ contains
     call deformation_update(s, dt, st)
     call toc(s, 5, t0)
     if (.not. st%ok()) return
+    if (proj) then
+      call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st)
+      call toc(s, 7, t0)
+      if (.not. st%ok()) return
+      call projected_deformation(s)
+      call toc(s, 5, t0)
+    end if
     s%dt_last = dt
     call stress_update(s, st)
     call toc(s, 6, t0)
+    if (.not. st%ok()) return
+    if (proj) then
+      call project_mean_stress(s, st)
+      call toc(s, 7, t0)
+      if (.not. st%ok()) return
+    end if
     s%t = s%t + dt
     s%steps = s%steps + 1
     s%diag(1) = s%t
@@ -254,30 +298,51 @@ contains
 
   subroutine p2g(s)
     !! Scatter mass, momentum and force to the nodes of each particle's velocity field
-    !! (and the mass gradient, for contact normals, when there are several fields).
+    !! (and the mass gradient, for contact normals, when there are several fields), strip
+    !! colour by colour (cpdi_schedule).
     type(sim_t), intent(inout) :: s
-    integer(ik) :: ip, k, a, f
+    integer(ik) :: k, b, colour
+
+    !$omp parallel do schedule(static) default(shared) private(k)
+    do k = 1, s%g%nnodes
+      s%g%m(k, :) = 0.0_wp
+      s%g%px(k, :) = 0.0_wp
+      s%g%py(k, :) = 0.0_wp
+      s%g%fx(k, :) = 0.0_wp
+      s%g%fy(k, :) = 0.0_wp
+    end do
+    !$omp end parallel do
+    if (s%any_rigid) then
+      s%g%mr = 0.0_wp
+      s%g%prx = 0.0_wp
+      s%g%pry = 0.0_wp
+    end if
+    if (s%g%nf > 1) then
+      s%g%gmx = 0.0_wp
+      s%g%gmy = 0.0_wp
+      s%g%gv = 0.0_wp
+    end if
+    do colour = 1, 2
+      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
+      do b = colour, s%sp%nstrip, 2
+        call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+      end do
+      !$omp end parallel do
+    end do
+  end subroutine p2g
+
+  subroutine p2g_strip(s, m0, m1)
+    !! P2G of the particles perm(m0:m1) (one strip).
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: m0, m1
+    integer(ik) :: m, ip, k, a, f
     real(wp) :: mp, mvx, mvy, vol, sxx, syy, sxy, bx, by, wk, gxk, gyk, wm
     logical :: rig, multi
 
     multi = s%g%nf > 1
     associate (g => s%g, p => s%p, sh => s%sh)
-      g%m = 0.0_wp
-      g%px = 0.0_wp
-      g%py = 0.0_wp
-      g%fx = 0.0_wp
-      g%fy = 0.0_wp
-      if (s%any_rigid) then
-        g%mr = 0.0_wp
-        g%prx = 0.0_wp
-        g%pry = 0.0_wp
-      end if
-      if (multi) then
-        g%gmx = 0.0_wp
-        g%gmy = 0.0_wp
-        g%gv = 0.0_wp
-      end if
-      do ip = 1, p%n
+      do m = m0, m1
+        ip = s%sp%perm(m)
         f = s%field(ip)
         mp = p%m(ip)
         mvx = mp*p%v(1, ip)
@@ -308,12 +373,12 @@ contains
           if (multi) then
             g%gmx(k, f) = g%gmx(k, f) + mp*gxk
             g%gmy(k, f) = g%gmy(k, f) + mp*gyk
-            g%gv(k, f) = g%gv(k, f) + wk*p%vol(ip)
+            g%gv(k, f) = g%gv(k, f) + wk*vol
           end if
         end do
       end do
     end associate
-  end subroutine p2g
+  end subroutine p2g_strip
 
   subroutine grid_update(s, dt)
     !! Nodal velocities at t^n (stored back in px, py) and t^{n+1} (vx, vy), per field;
@@ -331,6 +396,7 @@ contains
       ! carries the whole contact impulse to the particles (a correction of v^n would be lost
       ! to them and let approaching bodies keep kinetic energy the grid no longer has).
       do f = 1, g%nf
+        !$omp parallel do schedule(static) default(shared) private(k, rm, fx, fy)
         do k = 1, g%nnodes
           if (g%m(k, f) > s%mtol) then
             rm = 1.0_wp/g%m(k, f)
@@ -347,6 +413,7 @@ contains
             g%vy(k, f) = 0.0_wp
           end if
         end do
+        !$omp end parallel do
       end do
       if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
       do f = 1, g%nf
@@ -371,6 +438,7 @@ contains
     integer(ik) :: k, f
     real(wp) :: rm
     do f = 1, g%nf
+      !$omp parallel do schedule(static) default(shared) private(k, rm)
       do k = 1, g%nnodes
         if (g%m(k, f) > mtol) then
           rm = 1.0_wp/g%m(k, f)
@@ -381,6 +449,7 @@ contains
           qy(k, f) = 0.0_wp
         end if
       end do
+      !$omp end parallel do
     end do
   end subroutine momentum_to_velocity
 
@@ -401,9 +470,40 @@ contains
 
   subroutine g2p(s, dt)
     !! Particle velocity (FLIP/PIC blend), position, and velocity gradient, each particle
-    !! from its own velocity field.
+    !! from its own velocity field; diagnostics summed block by block.
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
+    integer(ik) :: c, lo, hi
+    logical :: musl
+
+    musl = s%opt%update == UPDATE_MUSL
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      call g2p_block(s, dt, lo, hi, s%red(:, c))
+    end do
+    !$omp end parallel do
+    s%diag(4) = sum(s%red(1, :))
+    s%diag(6) = sum(s%red(2, :))
+    s%diag(7) = sum(s%red(3, :))
+    s%diag(8) = s%diag(8) + sum(s%red(4, :))
+    s%diag(9) = s%diag(9) + sum(s%red(5, :))
+    s%diag(12) = sum(s%red(6, :))
+    ! With several fields (contact) the velocity gradient comes from the contact-corrected
+    ! integrated velocity, the field that moved the particles: a MUSL remap of the
+    ! particle momenta near a contact surface feeds approach velocity that contact
+    ! removed back into the strain rate (measured: +37 % kinetic energy in a head-on
+    ! collision of two elastic bars).
+    if (musl .and. s%g%nf == 1) call musl_remap(s)
+  end subroutine g2p
+
+  subroutine g2p_block(s, dt, lo, hi, red)
+    !! G2P of particles lo..hi; red = [kinetic energy, momentum x, y, work of gravity,
+    !! work of body forces, wall clamps] of the block.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik), intent(in) :: lo, hi
+    real(wp), intent(out) :: red(6)
     integer(ik) :: ip, k, a, nclamp, f
     real(wp) :: dvx, dvy, vnx, vny, wk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
     logical :: musl, closed(4)
@@ -419,7 +519,7 @@ contains
     wb = 0.0_wp
     nclamp = 0
     associate (g => s%g, p => s%p, sh => s%sh)
-      do ip = 1, p%n
+      do ip = lo, hi
         mp = p%m(ip)
         xo = p%x(:, ip)
         f = s%field(ip)
@@ -469,19 +569,9 @@ contains
         wg = wg + mp*dot_product(s%opt%gravity, p%x(:, ip) - xo)
         wb = wb + mp*dot_product(p%bf(:, ip), p%x(:, ip) - xo)
       end do
-      s%diag(4) = ke
-      s%diag(6:7) = mom
-      s%diag(8) = s%diag(8) + wg
-      s%diag(9) = s%diag(9) + wb
-      s%diag(12) = real(nclamp, wp)
-      ! With several fields (contact) the velocity gradient comes from the contact-corrected
-      ! integrated velocity, the field that moved the particles: a MUSL remap of the
-      ! particle momenta near a contact surface feeds approach velocity that contact
-      ! removed back into the strain rate (measured: +37 % kinetic energy in a head-on
-      ! collision of two elastic bars).
-      if (musl .and. g%nf == 1) call musl_remap(s)
     end associate
-  end subroutine g2p
+    red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
+  end subroutine g2p_block
 
   pure function velocity_gradient(sh, vx, vy, ip) result(l)
     !! L_p = sum_i v_i (x) grad S_ip, layout [L11, L21, L12, L22].
@@ -505,12 +595,46 @@ contains
     !! gradient from that field (Sulsky et al. 1994); rigid nodes and walls apply. Not
     !! used with contact (see g2p).
     type(sim_t), intent(inout) :: s
-    integer(ik) :: ip, k, a, f
+    integer(ik) :: ip, k, f, b, colour, c, lo, hi
+    !$omp parallel do schedule(static) default(shared) private(k)
+    do k = 1, s%g%nnodes
+      s%g%vx(k, :) = 0.0_wp
+      s%g%vy(k, :) = 0.0_wp
+    end do
+    !$omp end parallel do
+    do colour = 1, 2
+      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
+      do b = colour, s%sp%nstrip, 2
+        call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+      end do
+      !$omp end parallel do
+    end do
+    call momentum_to_velocity(s%g, s%mtol, s%g%vx, s%g%vy)
+    if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
+    do f = 1, s%g%nf
+      call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
+    end do
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      do ip = lo, hi
+        if (s%rigid(s%p%mat(ip))) cycle
+        f = s%field(ip)
+        s%p%L(:, ip) = velocity_gradient(s%sh, s%g%vx(:, f), s%g%vy(:, f), ip)
+      end do
+    end do
+    !$omp end parallel do
+  end subroutine musl_remap
+
+  subroutine remap_strip(s, m0, m1)
+    !! MUSL momentum scatter of the particles perm(m0:m1) (one strip).
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: m0, m1
+    integer(ik) :: m, ip, k, a, f
     real(wp) :: mvx, mvy, wk
     associate (g => s%g, p => s%p, sh => s%sh)
-      g%vx = 0.0_wp
-      g%vy = 0.0_wp
-      do ip = 1, p%n
+      do m = m0, m1
+        ip = s%sp%perm(m)
         f = s%field(ip)
         mvx = p%m(ip)*p%v(1, ip)
         mvy = p%m(ip)*p%v(2, ip)
@@ -521,39 +645,59 @@ contains
           g%vy(k, f) = g%vy(k, f) + wk*mvy
         end do
       end do
-      call momentum_to_velocity(g, s%mtol, g%vx, g%vy)
-      if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
-      do f = 1, g%nf
-        call grid_apply_walls(g, g%vx(:, f), g%vy(:, f))
-      end do
-      do ip = 1, p%n
-        if (s%rigid(p%mat(ip))) cycle
-        f = s%field(ip)
-        p%L(:, ip) = velocity_gradient(sh, g%vx(:, f), g%vy(:, f), ip)
-      end do
     end associate
-  end subroutine musl_remap
+  end subroutine remap_strip
 
   subroutine deformation_update(s, dt, st)
     !! F <- (I + dt L) F, volume J V0, CPDI domains r = F r0 (optionally scaled). With the
     !! projection on, the volumetric strain increment ln det(I + dt L) of the participating
-    !! particles is projected (rate form, Mast et al. 2012) and J and F are rebuilt from it:
-    !! fluids F = sqrt(J) I, solids F <- sqrt(J~/J) F (plane-strain F-bar).
-    !! Stabilisation: the increment used is (1 - beta) projected + beta raw. A full
-    !! projection gives sub-cell (hourglass) motions of a fluid no volumetric stiffness at
-    !! all; over seconds they grow and the water collapses into itself (measured: a resting
-    !! tank gained 2.7 kJ of kinetic energy in 4 s). beta keeps a stiffness beta K for them.
+    !! particles is left in work(1, :) for projection (rate form, Mast et al. 2012) and
+    !! `projected_deformation` rebuilds J, F and the domains from it.
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip
-    real(wp) :: a11, a21, a12, a22, f(4), j, deta, jn
+    integer(ik) :: c, lo, hi, ip
     character(len=300) :: buf
+
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      call deformation_block(s, dt, lo, hi, s%cbad(c), s%cval(c))
+    end do
+    !$omp end parallel do
+    do c = 1, NCHUNK
+      ip = s%cbad(c)
+      if (ip == 0) cycle
+      if (s%cval(c) /= s%cval(c)) then
+        write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN in the velocity gradient of particle ', &
+          ip, '; the run became unstable (reduce cfl, check material parameters)'
+        call st%set(CPDI_ERR_NAN, trim(buf))
+      else
+        write (buf, '(a,i0,a,i0,a,2es12.4,a,es11.3,a)') 'step ', s%steps + 1, ': particle ', ip, ' at (', &
+          s%p%x(:, ip), ') has det F = ', s%cval(c), ' <= 0 (material inverted); reduce cfl or refine the grid'
+        call st%set(CPDI_ERR_JACOBIAN, trim(buf))
+      end if
+      return
+    end do
+  end subroutine deformation_update
+
+  subroutine deformation_block(s, dt, lo, hi, bad, jbad)
+    !! deformation_update of particles lo..hi; bad is the first particle with det F <= 0
+    !! or NaN (0 if none) and jbad its det F.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik), intent(in) :: lo, hi
+    integer(ik), intent(out) :: bad
+    real(wp), intent(out) :: jbad
+    integer(ik) :: ip
+    real(wp) :: a11, a21, a12, a22, f(4), j, deta
     logical :: proj
 
     proj = s%opt%projection /= PROJ_NONE
+    bad = 0
+    jbad = 0.0_wp
     associate (p => s%p)
-      do ip = 1, p%n
+      do ip = lo, hi
         a11 = 1.0_wp + dt*p%L(1, ip)
         a21 = dt*p%L(2, ip)
         a12 = dt*p%L(3, ip)
@@ -572,46 +716,55 @@ contains
           j = det2(p%F(:, ip))
         end if
         if (.not. (j > 0.0_wp) .or. .not. (deta > 0.0_wp)) then
-          if (j /= j) then
-            write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN in the velocity gradient of particle ', &
-              ip, '; the run became unstable (reduce cfl, check material parameters)'
-            call st%set(CPDI_ERR_NAN, trim(buf))
-          else
-            write (buf, '(a,i0,a,i0,a,2es12.4,a,es11.3,a)') 'step ', s%steps + 1, ': particle ', ip, ' at (', &
-              p%x(:, ip), ') has det F = ', j, ' <= 0 (material inverted); reduce cfl or refine the grid'
-            call st%set(CPDI_ERR_JACOBIAN, trim(buf))
+          if (bad == 0) then
+            bad = ip
+            jbad = j
+            if (deta /= deta) jbad = deta
           end if
-          return
+          cycle
         end if
         p%vol(ip) = j*p%vol0(ip)
         p%jbar(ip) = j
         if (proj) then
-          p%work(1, ip) = log(deta)          ! volumetric strain increment, projected below
+          p%work(1, ip) = log(deta)          ! volumetric strain increment, projected
           p%work(2, ip) = det2(f)            ! J at the start of the step
           p%work(3, ip) = p%work(1, ip)      ! raw increment, for the stabilisation
         else
           call update_domain(s, ip)
         end if
       end do
-      if (proj) then
-        call project_scalar(s%proj, s%opt%projection, s%opt%shape, s%g, p, s%pmask, p%work(1, :), st)
-        if (.not. st%ok()) return
-        do ip = 1, p%n
-          if (s%pmask(ip)) then
-            jn = p%work(2, ip)*exp((1.0_wp - s%opt%pstab)*p%work(1, ip) + s%opt%pstab*p%work(3, ip))
-            if (s%fluid(p%mat(ip))) then
-              p%F(:, ip) = [sqrt(jn), 0.0_wp, 0.0_wp, sqrt(jn)]
-            else
-              p%F(:, ip) = p%F(:, ip)*sqrt(jn/p%jbar(ip))
-            end if
-            p%vol(ip) = jn*p%vol0(ip)
-            p%jbar(ip) = jn
-          end if
-          call update_domain(s, ip)
-        end do
-      end if
     end associate
-  end subroutine deformation_update
+  end subroutine deformation_block
+
+  subroutine projected_deformation(s)
+    !! J, F and volume of the participating particles from the projected strain increment
+    !! (fluids F = sqrt(J) I, solids F <- sqrt(J~/J) F: plane-strain F-bar), then every
+    !! domain. Stabilisation: the increment used is (1 - beta) projected + beta raw. A full
+    !! projection gives sub-cell (hourglass) motions of a fluid no volumetric stiffness at
+    !! all; over seconds they grow and the water collapses into itself (measured: a resting
+    !! tank gained 2.7 kJ of kinetic energy in 4 s). beta keeps a stiffness beta K for them.
+    type(sim_t), intent(inout) :: s
+    integer(ik) :: c, lo, hi, ip
+    real(wp) :: jn
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, jn)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      do ip = lo, hi
+        if (s%pmask(ip)) then
+          jn = s%p%work(2, ip)*exp((1.0_wp - s%opt%pstab)*s%p%work(1, ip) + s%opt%pstab*s%p%work(3, ip))
+          if (s%fluid(s%p%mat(ip))) then
+            s%p%F(:, ip) = [sqrt(jn), 0.0_wp, 0.0_wp, sqrt(jn)]
+          else
+            s%p%F(:, ip) = s%p%F(:, ip)*sqrt(jn/s%p%jbar(ip))
+          end if
+          s%p%vol(ip) = jn*s%p%vol0(ip)
+          s%p%jbar(ip) = jn
+        end if
+        call update_domain(s, ip)
+      end do
+    end do
+    !$omp end parallel do
+  end subroutine projected_deformation
 
   subroutine update_domain(s, ip)
     !! CPDI domain of particle ip from its F, with optional Homel et al. (2016) scaling.
@@ -640,16 +793,50 @@ contains
     !! Stress and energy of every particle; signal speed for the next step.
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip, im
-    real(wp) :: se, smax, c, rho, vmag, psi, sig(4), vdt, dis, tr3
+    integer(ik) :: c, lo, hi, ip
+    real(wp) :: smax, vdt
     character(len=300) :: buf
 
-    se = 0.0_wp
     smax = 0.0_wp
-    dis = 0.0_wp
     vdt = huge(1.0_wp)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) reduction(max:smax) reduction(min:vdt)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      call stress_block(s, lo, hi, s%red(:, c), smax, vdt, s%cbad(c))
+    end do
+    !$omp end parallel do
+    do c = 1, NCHUNK
+      ip = s%cbad(c)
+      if (ip == 0) cycle
+      write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity '// &
+        'of particle ', ip, ' at (', s%p%x(:, ip), '); the run became unstable (reduce cfl, check materials)'
+      call st%set(CPDI_ERR_NAN, trim(buf))
+      return
+    end do
+    s%diag(5) = sum(s%red(1, :))
+    s%diag(14) = s%diag(14) + sum(s%red(2, :))*s%dt_last
+    s%smax = smax
+    s%visc_dt = vdt
+    s%diag(11) = smax
+  end subroutine stress_update
+
+  subroutine stress_block(s, lo, hi, red, smax, vdt, bad)
+    !! Stress of particles lo..hi; red(1:2) = [strain energy, viscous dissipation rate] of
+    !! the block; smax, vdt: running max signal speed and min viscous step; bad: the first
+    !! particle with a non-finite stress or velocity (0 if none).
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: lo, hi
+    real(wp), intent(out) :: red(6)
+    real(wp), intent(inout) :: smax, vdt
+    integer(ik), intent(out) :: bad
+    integer(ik) :: ip, im
+    real(wp) :: se, c, rho, vmag, psi, sig(4), dis, tr3
+
+    se = 0.0_wp
+    dis = 0.0_wp
+    bad = 0
     associate (p => s%p)
-      do ip = 1, p%n
+      do ip = lo, hi
         im = p%mat(ip)
         call material_stress(s%mats(im), s%opt%kinematics, p%F(:, ip), p%L(:, ip), p%jbar(ip), sig, psi)
         p%sig(:, ip) = sig
@@ -659,10 +846,8 @@ contains
         vmag = sqrt(p%v(1, ip)**2 + p%v(2, ip)**2)
         c = sqrt(s%mats(im)%pmod/rho) + vmag
         if (.not. (abs(sig(1)) + abs(sig(2)) + abs(sig(3)) + c < huge(1.0_wp))) then
-          write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity '// &
-            'of particle ', ip, ' at (', p%x(:, ip), '); the run became unstable (reduce cfl, check materials)'
-          call st%set(CPDI_ERR_NAN, trim(buf))
-          return
+          if (bad == 0) bad = ip
+          cycle
         end if
         smax = max(smax, c)
         if (s%mats(im)%model == MAT_FLUID .and. s%mats(im)%visc > 0.0_wp) then
@@ -674,36 +859,39 @@ contains
         end if
       end do
     end associate
-    s%diag(5) = se
-    s%diag(14) = s%diag(14) + dis*s%dt_last
-    s%smax = smax
-    s%visc_dt = vdt
-    s%diag(11) = smax
-    if (s%opt%projection /= PROJ_NONE .and. allocated(s%pmask)) call project_mean_stress(s, st)
-  end subroutine stress_update
+    red = [se, dis, 0.0_wp, 0.0_wp, 0.0_wp, 0.0_wp]
+  end subroutine stress_block
 
   subroutine project_mean_stress(s, st)
     !! Replace the mean stress (sxx + syy + szz)/3 of the participating particles by its
-    !! projection (blended with beta of the particle's own, see deformation_update); the
-    !! deviatoric stress is left as it is.
+    !! projection (blended with beta of the particle's own, see projected_deformation);
+    !! the deviatoric stress is left as it is. Uses the operator set up for this step.
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip
+    integer(ik) :: c, lo, hi, ip
     real(wp) :: dm
-    associate (p => s%p)
-      do ip = 1, p%n
-        p%work(1, ip) = (p%sig(1, ip) + p%sig(2, ip) + p%sig(4, ip))/3.0_wp
-        p%work(2, ip) = p%work(1, ip)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      do ip = lo, hi
+        s%p%work(1, ip) = (s%p%sig(1, ip) + s%p%sig(2, ip) + s%p%sig(4, ip))/3.0_wp
+        s%p%work(2, ip) = s%p%work(1, ip)
       end do
-      call project_scalar(s%proj, s%opt%projection, s%opt%shape, s%g, p, s%pmask, p%work(1, :), st)
-      if (.not. st%ok()) return
-      do ip = 1, p%n
+    end do
+    !$omp end parallel do
+    call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st)
+    if (.not. st%ok()) return
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, dm)
+    do c = 1, NCHUNK
+      call chunk_range(c, s%p%n, lo, hi)
+      do ip = lo, hi
         if (.not. s%pmask(ip)) cycle
-        dm = (1.0_wp - s%opt%pstab)*(p%work(1, ip) - p%work(2, ip))
-        p%sig(1, ip) = p%sig(1, ip) + dm
-        p%sig(2, ip) = p%sig(2, ip) + dm
-        p%sig(4, ip) = p%sig(4, ip) + dm
+        dm = (1.0_wp - s%opt%pstab)*(s%p%work(1, ip) - s%p%work(2, ip))
+        s%p%sig(1, ip) = s%p%sig(1, ip) + dm
+        s%p%sig(2, ip) = s%p%sig(2, ip) + dm
+        s%p%sig(4, ip) = s%p%sig(4, ip) + dm
       end do
-    end associate
+    end do
+    !$omp end parallel do
   end subroutine project_mean_stress
 end module cpdi_step

@@ -1,0 +1,88 @@
+!> Work division for OpenMP that gives the same bits at any thread count.
+module cpdi_schedule
+  !! Two devices make every parallel loop of a step independent of the number of threads:
+  !!
+  !! * **Chunks** (gathers and reductions). Particles are cut into `NCHUNK` fixed blocks
+  !!   of consecutive indices, whatever the thread count. A reduction (energy, momentum)
+  !!   sums each block in index order into its own slot, and the slots are then added in
+  !!   block order, serially. The error scan takes the lowest failing particle.
+  !! * **Strips** (scatters to the grid). Particles are binned by the lowest node row of
+  !!   their stencil into horizontal strips `width` node rows high, with width at least
+  !!   the tallest stencil's span (last minus first row). Two strips of the same parity then touch disjoint nodes,
+  !!   so all even strips are scattered in parallel, then all odd strips (graph colouring
+  !!   in two colours). Every node receives the contributions of at most one even and one
+  !!   odd strip, each in particle-index order: the sums are bitwise the same at any
+  !!   thread count, with no atomics and no per-thread grid copies.
+  !!
+  !! The binning is a stable counting sort, O(n), with storage sized once. Horizontal
+  !! strips keep particles seeded row by row (and nodes, numbered row by row) contiguous in
+  !! memory within a strip; vertical strips measured 4x slower P2G from lost locality.
+  use, intrinsic :: iso_fortran_env, only: int64
+  use cpdi_kinds, only: ik
+  use cpdi_status, only: status_t, CPDI_ERR_ALLOC
+  implicit none
+  private
+
+  integer(ik), parameter, public :: NCHUNK = 64   !! fixed particle blocks of a reduction
+
+  type, public :: strips_t
+    integer(ik) :: nstrip = 0                !! strips in use
+    integer(ik) :: width = 0                 !! node rows per strip
+    integer(ik), allocatable :: perm(:)      !! particles ordered strip by strip (n)
+    integer(ik), allocatable :: start(:)     !! first position of each strip in perm (nrow + 2)
+    integer(ik), allocatable :: next(:)      !! fill pointers of the counting sort (nrow + 2)
+  end type strips_t
+
+  public :: strips_alloc, strips_build, chunk_range
+
+contains
+
+  pure subroutine chunk_range(c, n, lo, hi)
+    !! Particles lo..hi of block c (1..NCHUNK) of n; empty (hi < lo) for small n.
+    integer(ik), intent(in) :: c, n
+    integer(ik), intent(out) :: lo, hi
+    lo = int(int(c - 1, int64)*int(n, int64)/NCHUNK, ik) + 1
+    hi = int(int(c, int64)*int(n, int64)/NCHUNK, ik)
+  end subroutine chunk_range
+
+  subroutine strips_alloc(sp, n, nrow, st)
+    !! Storage for n particles on a grid of nrow node rows.
+    type(strips_t), intent(inout) :: sp
+    integer(ik), intent(in) :: n, nrow
+    type(status_t), intent(inout) :: st
+    integer :: ierr
+    if (allocated(sp%perm)) deallocate (sp%perm, sp%start, sp%next)
+    allocate (sp%perm(n), sp%start(nrow + 2), sp%next(nrow + 2), stat=ierr)
+    if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate the particle ordering; use fewer particles')
+  end subroutine strips_alloc
+
+  subroutine strips_build(sp, row, span)
+    !! Bin the particles by row(ip) (lowest node row of the stencil, 0-based) into strips
+    !! span rows high (span: tallest stencil, last minus first node row). A strip b then
+    !! reaches rows below (b + 1) span + span, short of strip b + 2: same-colour strips
+    !! touch disjoint nodes.
+    type(strips_t), intent(inout) :: sp
+    integer(ik), intent(in) :: row(:)
+    integer(ik), intent(in) :: span
+    integer(ik) :: ip, b, ncap
+    ncap = size(sp%start) - 1
+    sp%width = max(span, 1)
+    sp%nstrip = 0
+    sp%start = 0
+    do ip = 1, size(row)
+      b = min(row(ip)/sp%width + 1, ncap)
+      sp%start(b + 1) = sp%start(b + 1) + 1
+      sp%nstrip = max(sp%nstrip, b)
+    end do
+    sp%start(1) = 1
+    do b = 1, sp%nstrip
+      sp%start(b + 1) = sp%start(b + 1) + sp%start(b)
+    end do
+    sp%next(1:sp%nstrip) = sp%start(1:sp%nstrip)
+    do ip = 1, size(row)
+      b = min(row(ip)/sp%width + 1, ncap)
+      sp%perm(sp%next(b)) = ip
+      sp%next(b) = sp%next(b) + 1
+    end do
+  end subroutine strips_build
+end module cpdi_schedule
