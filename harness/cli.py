@@ -1,12 +1,15 @@
 """Command line: ``python -m harness {run,verify,report,bench}``.
 
 Errors print one line naming the problem and the fix, and exit non-zero:
-1 = a run or check failed, 2 = bad input (case file, arguments), 130 = interrupted.
+1 = a run or check failed, 2 = bad input (case file, arguments, checkpoint), 130 = interrupted
+(``run``: 128 + the signal, i.e. 130 for SIGINT and 143 for SIGTERM, after a clean stop).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import shlex
 import sys
 from pathlib import Path
 
@@ -21,14 +24,33 @@ def _err(msg: str) -> None:
 
 def cmd_run(args) -> int:
     from harness import cases, runner
+    from harness.checkpoint import CheckpointError, locate
 
     case = cases.load(args.case, args.set)
-    out = Path(args.out) if args.out else REPO / "runs" / case.name
+    every = args.checkpoint_every
+    if every is not None and not (math.isfinite(every) and every > 0):
+        _err(f"--checkpoint-every {every} must be a positive number of simulated seconds")
+        return 2
+    if args.out:
+        out = Path(args.out)
+    else:
+        out = locate(args.restart).parent if args.restart else REPO / "runs" / case.name
     try:
-        res = runner.run(case, out, progress=not args.no_progress)
+        with runner.StopOnSignal() as stop:
+            res = runner.run(case, out, progress=not args.no_progress, checkpoint_every=every,
+                             restart=args.restart, stop=stop)
+    except CheckpointError as exc:
+        _err(str(exc))
+        return 2
     except runner.RunFailed as exc:
         _err(f"{exc}\n       partial outputs kept in {out}/ (summary.json has status 'failed')")
         return 1
+    except runner.RunInterrupted as exc:
+        again = shlex.join(["python", "-m", "harness", "run", args.case,
+                            *(a for kv in args.set for a in ("--set", kv)), "--restart", str(out)])
+        print(f"{exc}\n  partial outputs kept in {out}/ (summary.json has status 'interrupted'), "
+              f"checkpoint {exc.summary['checkpoint']['path']}\n  resume with: {again}", file=sys.stderr)
+        return exc.exit_code
     s = res.summary
     print(f"{case.name}: completed t = {s['simulated_time']:.4g} s in {s['steps']} steps, "
           f"{s['wall_s']:.2f} s wall, {s['particles']} particles, "
@@ -92,6 +114,12 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a case value, e.g. --set solver.cfl=0.2 (repeatable)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.add_argument("--checkpoint-every", type=float, metavar="T",
+                   help="write OUT/checkpoint.h5 (atomically) at the first step at or after every T simulated "
+                        "seconds; SIGINT/SIGTERM always stop cleanly and write one")
+    r.add_argument("--restart", metavar="DIR",
+                   help="continue bit for bit from DIR/checkpoint.h5 (same case and --set overrides); "
+                        "outputs go to DIR unless --out is given")
     r.set_defaults(func=cmd_run)
     v = sub.add_parser("verify", help="run the verification checks and write a report")
     v.add_argument("--quick", action="store_true", help="CI resolution")

@@ -38,12 +38,30 @@ def corners(x: np.ndarray, r: np.ndarray) -> np.ndarray:
 class SnapshotWriter:
     """Appends particle snapshots to HDF5 and keeps the XDMF index current."""
 
-    def __init__(self, run_dir: Path):
+    def __init__(self, run_dir: Path, keep: int | None = None):
+        """A new file; or, with ``keep`` (a restart), the existing file cut back to its first
+        ``keep`` snapshots (ValueError if it holds fewer)."""
         self.h5_path = run_dir / "snapshots.h5"
         self.xdmf_path = run_dir / "snapshots.xdmf"
-        self._f = h5py.File(self.h5_path, "w")
-        self._grp = self._f.create_group("snapshots")
+        self._f = h5py.File(self.h5_path, "w" if keep is None else "r+")
         self._times: list[tuple[str, float, int]] = []
+        if keep is None:
+            self._grp = self._f.create_group("snapshots")
+            return
+        try:
+            self._grp = self._f["snapshots"]
+            names = sorted(self._grp)
+            if len(names) < keep:
+                raise ValueError(f"it holds {len(names)}")
+            for name in names[keep:]:
+                del self._grp[name]
+            self._times = [(n, float(self._grp[n].attrs["time"]), self._grp[n]["position"].shape[0])
+                           for n in names[:keep]]
+            if keep:
+                self._write_xdmf([k for k in FIELDS_XDMF if k in self._grp[names[keep - 1]]])
+        except BaseException:
+            self.close()
+            raise
 
     def write(self, t: float, fields: dict[str, np.ndarray]) -> None:
         name = f"{len(self._times):06d}"

@@ -4,18 +4,32 @@ The loop advances the Fortran solver in chunks between series samples (no I/O in
 the solver), evaluates probes, appends ``series.csv`` and writes snapshots at
 ``output_every``. On a solver error the outputs written so far are kept,
 ``summary.json`` gets status ``failed`` with the reason, and :class:`RunFailed` is raised.
+
+Checkpoint and restart: with ``checkpoint_every`` the full state goes to
+``checkpoint.h5`` (see :mod:`harness.checkpoint`) at the first step boundary at or after
+each multiple of that simulated time; ``restart`` continues from one, bit for bit. With
+``stop`` (e.g. :class:`StopOnSignal`) the solver advances in pieces of about
+``STOP_LATENCY_S`` of wall time and the run ends at the next piece boundary once ``stop()``
+returns a reason: a final checkpoint is written, ``summary.json`` gets status
+``interrupted``, and :class:`RunInterrupted` is raised. Neither changes a bit of the
+results: pieces end on step boundaries, and the solver's steps depend only on the target
+time of the chunk, never on where a call stopped.
 """
 
 from __future__ import annotations
 
 import math
+import shutil
+import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from harness import checkpoint
 from harness.cases import Case
 from harness.output import SeriesWriter, SnapshotWriter, corners, write_json
 from harness.probes import ProbeSet
@@ -26,12 +40,55 @@ SERIES_BASE = ["t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y
                "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt"]
 
 
+STOP_LATENCY_S = 0.2  # wall time per solver call while a stop request is watched
+
+
 class RunFailed(RuntimeError):
     """The solver stopped with an error; ``summary`` holds what was written."""
 
     def __init__(self, message: str, summary: dict[str, Any]):
         super().__init__(message)
         self.summary = summary
+
+
+class RunInterrupted(RuntimeError):
+    """The run was stopped on request; ``summary`` holds what was written, ``exit_code`` the
+    conventional status (128 + signal number) when a signal asked for it."""
+
+    def __init__(self, message: str, summary: dict[str, Any], exit_code: int):
+        super().__init__(message)
+        self.summary = summary
+        self.exit_code = exit_code
+
+
+class StopOnSignal:
+    """Context manager: SIGINT and SIGTERM ask the run to stop at the next piece boundary
+    instead of killing it. Calling the object returns the reason once a signal came."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def _handler(self, signum, frame) -> None:
+        self.signum = signum
+
+    def __enter__(self) -> StopOnSignal:
+        for sig in self.SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def __call__(self) -> str | None:
+        return None if self.signum is None else signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + (self.signum or 0)
 
 
 def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, ParticleSet]:
@@ -63,40 +120,86 @@ class RunResult:
     snapshots: list[float] = field(default_factory=list)
 
 
-def _progress(total: float, enabled: bool, desc: str):
+def _progress(total: float, enabled: bool, desc: str, initial: float = 0.0):
     if not enabled:
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="s(sim)", bar_format="{desc}: {percentage:3.0f}%|{bar}| "
+    return tqdm(total=total, initial=initial, desc=desc, unit="s(sim)", bar_format="{desc}: {percentage:3.0f}%|{bar}| "
                 "t={n:.4g}/{total:.4g} s [{elapsed}<{remaining}{postfix}]", leave=False, dynamic_ncols=True,
                 disable=None)  # None: off when stderr is not a terminal (CI logs)
 
 
-def run(case: Case, out_dir: Path | None = None, progress: bool = True,
-        snapshots: bool = True) -> RunResult:
-    """Run a case to t_end. With ``out_dir`` the contract outputs are written there."""
+def _resume_snapshots(out_dir: Path, ck: checkpoint.Checkpoint) -> SnapshotWriter:
+    """The snapshot file of the checkpoint's run (copied into out_dir if that is elsewhere),
+    cut back to the snapshots written before the checkpoint."""
+    src, dst = ck.path.parent / "snapshots.h5", out_dir / "snapshots.h5"
+    keep = len(ck.runner["snap_times"])
+    try:
+        if not (dst.exists() and src.samefile(dst)):
+            shutil.copyfile(src, dst)
+        return SnapshotWriter(out_dir, keep=keep)
+    except (OSError, KeyError, ValueError) as exc:
+        raise checkpoint.CheckpointError(
+            f"cannot continue the snapshots: {src} should hold the {keep} snapshots written before the checkpoint "
+            f"({exc}); restore that file, or rerun from t = 0 without --restart") from None
+
+
+def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshots: bool = True,
+        checkpoint_every: float | None = None, restart: str | Path | None = None,
+        stop: Callable[[], str | None] | None = None) -> RunResult:
+    """Run a case to t_end. With ``out_dir`` the contract outputs are written there;
+    ``checkpoint_every``, ``restart`` and ``stop`` as described in the module doc."""
     s = case["solver"]
     t_end, dt_out, dt_ser = s["t_end"], s["output_every"], s["series_every"]
+    if out_dir is None and (checkpoint_every is not None or restart is not None):
+        raise ValueError("checkpoint_every and restart need an output directory")
     sim, parts = build(case)
     probes = ProbeSet(case, parts)
     columns = SERIES_BASE + probes.names
     rows: dict[str, list[float]] = {c: [] for c in columns}
+    ck = None
+    if restart is not None:  # read and check everything before any output is touched
+        ck = checkpoint.load(restart, case, parts)
+        if list(ck.rows) != columns:
+            raise checkpoint.CheckpointError(f"{ck.path} has series columns {list(ck.rows)}, this harness writes "
+                                             f"{columns}; rerun from t = 0 without --restart")
+        try:
+            sim.set_full_state(ck.particles, ck.scalars)
+        except CpdiError as exc:
+            raise checkpoint.CheckpointError(f"{ck.path}: {exc}") from None
+        rows = ck.rows
     writer = series = None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
+        if snapshots:
+            writer = SnapshotWriter(out_dir) if ck is None else _resume_snapshots(out_dir, ck)
         series = SeriesWriter(out_dir / "series.csv", columns)
-        writer = SnapshotWriter(out_dir) if snapshots else None
+        for i in range(len(rows["t"])):  # a restart rewrites the rows up to its checkpoint
+            series.write({c: rows[c][i] for c in columns})
     summary: dict[str, Any] = {
         "case": case.name, "case_file": str(case.path) if case.path else None, "overrides": case.overrides,
         "parameters": case.data, "status": "running", "particles": parts.n, "steps": 0, "simulated_time": 0.0,
         "wall_s": 0.0, "particle_updates_per_s": 0.0,
     }
     snap_times: list[float] = []
-    bar = _progress(t_end, progress, case.name)
-    t0 = time.perf_counter()
     t = 0.0
     total_steps = 0
+    wall_before = 0.0
+    if ck is not None:
+        snap_times, total_steps, wall_before = ck.runner["snap_times"], ck.runner["total_steps"], ck.runner["wall_s"]
+        t = float(ck.scalars[0])
+        summary["restarted_from"] = {"checkpoint": str(ck.path), "t": t}
+    ckpt_path = out_dir / checkpoint.FILENAME if out_dir is not None else None
+
+    def ckpt_after(t_now: float) -> float:  # the next multiple of checkpoint_every
+        if checkpoint_every is None:
+            return math.inf
+        return (math.floor(t_now / checkpoint_every * (1 + 1e-12)) + 1) * checkpoint_every
+
+    next_ckpt = ckpt_after(t)
+    bar = _progress(t_end, progress, case.name, initial=t)
+    t0 = time.perf_counter()
 
     def sample(state):
         d = sim.diagnostics()
@@ -117,40 +220,64 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True,
                 "jacobian": state["F"][:, 0] * state["F"][:, 3] - state["F"][:, 1] * state["F"][:, 2],
                 "corners": corners(state["x"], state["r"])})
 
+    def save_checkpoint():
+        checkpoint.save(ckpt_path, case, parts, sim.get_full_state(),
+                        {"n_out": n_out, "n_ser": n_ser, "total_steps": total_steps, "snap_times": snap_times,
+                         "wall_s": wall_before + time.perf_counter() - t0}, rows)
+        summary["checkpoint"] = {"path": str(ckpt_path), "t": t}
+
+    status, reason, state, interrupted = "failed", "aborted by a Python exception", None, None
     try:
-        state = sim.state()
-        sample(state)
-        snapshot(state)
-        n_out = 1
-        n_ser = 1
+        if ck is None:
+            state = sim.state()
+            sample(state)
+            snapshot(state)
+            n_out = n_ser = 1
+        else:
+            n_out, n_ser = ck.runner["n_out"], ck.runner["n_ser"]
+        piece = 1  # steps per solver call while a stop request is watched
         while t < t_end * (1 - 1e-12):
+            if stop is not None and (interrupted := stop()) is not None:
+                break
             t_next_out = min(n_out * dt_out, t_end)
             t_next = min(n_ser * dt_ser, t_next_out)
-            steps, t = sim.advance(t_next, max_steps=max(1, s["max_steps"] - total_steps))
+            budget = max(1, s["max_steps"] - total_steps)
+            w0 = time.perf_counter()
+            steps, t = sim.advance(t_next, max_steps=budget if stop is None else min(budget, piece))
             total_steps += steps
-            if total_steps >= s["max_steps"] and t < t_next * (1 - 1e-12):
+            if stop is not None and steps:
+                piece = max(1, min(8 * piece, int(STOP_LATENCY_S * steps / max(time.perf_counter() - w0, 1e-9))))
+            reached = t >= t_next * (1 - 1e-12)
+            if not reached and total_steps >= s["max_steps"]:
                 raise CpdiError(2, f"reached solver.max_steps = {s['max_steps']} at t = {t:.6g} s; "
                                    "raise max_steps or shorten t_end")
-            state = sim.state()
-            if t >= t_next * (1 - 1e-12):
+            if reached:
+                state = sim.state()
                 n_ser += 1
                 sample(state)
-            if t >= t_next_out * (1 - 1e-12):
-                n_out += 1
-                snapshot(state)
+                if t >= t_next_out * (1 - 1e-12):
+                    n_out += 1
+                    snapshot(state)
+            if t >= next_ckpt * (1 - 1e-12) and t < t_end * (1 - 1e-12):
+                save_checkpoint()
+                next_ckpt = ckpt_after(t)
             if bar is not None:
                 wall = time.perf_counter() - t0
                 bar.set_postfix_str(f"steps={total_steps} {parts.n * total_steps / max(wall, 1e-9) / 1e6:.2f} Mpu/s",
                                     refresh=False)
                 bar.update(t - bar.n)
-        status = "completed"
-        reason = None
-    except CpdiError as exc:
+        if interrupted is None:
+            status, reason = "completed", None
+        else:
+            if ckpt_path is not None:
+                save_checkpoint()
+            status, reason = "interrupted", f"interrupted by {interrupted} at t = {t:.6g} s (step {total_steps})"
+    except (CpdiError, checkpoint.CheckpointError) as exc:
         status = "failed"
-        reason = f"{exc.kind}: {exc}"
+        reason = f"{getattr(exc, 'kind', 'checkpoint')}: {exc}"
         state = None
     finally:
-        wall = time.perf_counter() - t0
+        wall = wall_before + time.perf_counter() - t0
         if bar is not None:
             bar.close()
         if writer is not None:
@@ -161,7 +288,9 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True,
         summary.update(status=status, steps=int(diag["steps"]), simulated_time=diag["t"], wall_s=wall,
                        particle_updates_per_s=parts.n * diag["steps"] / wall if wall > 0 else 0.0,
                        timers=sim.timers(), snapshots=len(snap_times))
-        if status != "completed":
+        if status == "interrupted":
+            summary["reason"] = reason
+        elif status != "completed":
             summary["error"] = reason
         if out_dir is not None:
             write_json(out_dir / "summary.json", summary)
@@ -169,6 +298,8 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True,
     sim.close()
     result = RunResult(summary=summary, series={k: np.asarray(v) for k, v in rows.items()}, final=final,
                        parts=parts, snapshots=snap_times)
+    if status == "interrupted":
+        raise RunInterrupted(f"case '{case.name}' {reason}", summary, getattr(stop, "exit_code", 130))
     if status != "completed":
         raise RunFailed(f"case '{case.name}' failed at t = {summary['simulated_time']:.6g} s: {reason}", summary)
     if not math.isfinite(summary["simulated_time"]):

@@ -292,6 +292,23 @@ class Simulation:
         idx, w, gx, gy = _call("cpdi_get_shape", self._handle, self._n, ns)
         return idx.T - 1, w.T, gx.T, gy.T
 
+    # -- checkpoint / restart -------------------------------------------------------
+    def get_full_state(self) -> dict[str, np.ndarray]:
+        """Everything stepping depends on: ``particles`` (rows x n, Fortran layout, rows
+        named by FULL_STATE_ROWS) and ``scalars`` (FULL_STATE_SCALARS). A simulation built
+        from the same case and given this by :meth:`set_full_state` continues bit for bit."""
+        if self._n < 1:
+            raise CpdiError(2, "no particles set; call set_particles first")
+        nprow, nscal = _call("cpdi_full_state_size")
+        particles, scalars = _call("cpdi_get_full_state", self._handle, nprow, self._n, nscal)
+        return {"particles": particles, "scalars": scalars}
+
+    def set_full_state(self, particles, scalars) -> None:
+        """Restore :meth:`get_full_state`'s output. Call it after every set_* method (they
+        mark the stress stale; this restores stress and signal speed as they were)."""
+        _call("cpdi_set_full_state", self._handle, np.asfortranarray(particles, dtype=np.float64),
+              np.asarray(scalars, dtype=np.float64))
+
 
 def threads(n: int = 0) -> int:
     """OpenMP threads of the solver in this process: n > 0 sets them, 0 only asks. Results do
@@ -315,3 +332,10 @@ def pressure(sigma: np.ndarray) -> np.ndarray:
     """Pressure -tr(sigma)/3 of plane-strain stresses (n,4) [sxx, syy, sxy, szz]."""
     s = np.asarray(sigma)
     return -(s[:, 0] + s[:, 1] + s[:, 3]) / 3.0
+
+
+# Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
+FULL_STATE_ROWS = (("x", 2), ("v", 2), ("F", 4), ("L", 4), ("sigma", 4), ("r", 4), ("body_force", 2), ("vol", 1),
+                   ("psi", 1), ("jbar", 1))
+FULL_STATE_SCALARS = ("t", "steps", "smax", "visc_dt", "dt_last", *(f"diag.{d}" for d in DIAG_NAMES),
+                      *(f"timer.{t}" for t in TIMER_NAMES))

@@ -34,6 +34,11 @@ module cpdi_api
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
 
+  ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
+  integer, parameter :: NPSTATE = 25                !! rows per particle of the full state
+  integer, parameter :: NSSTATE = 5 + NDIAG + NTIMER !! scalars of the full state
+  public :: cpdi_full_state_size, cpdi_get_full_state, cpdi_set_full_state
+
 contains
 
   subroutine finish(st, ierr, msg)
@@ -611,4 +616,138 @@ contains
     end do
     call finish(st, ierr, msg)
   end subroutine cpdi_log_strain
+
+  subroutine cpdi_full_state_size(nprow, nscal, ierr, msg)
+    !! Sizes of the full-state arrays of cpdi_get_full_state and cpdi_set_full_state.
+    integer(c_int), intent(out) :: nprow   !! rows per particle
+    integer(c_int), intent(out) :: nscal   !! scalars
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    nprow = NPSTATE
+    nscal = NSSTATE
+    call finish(st, ierr, msg)
+  end subroutine cpdi_full_state_size
+
+  subroutine check_full_state_dims(s, nprow, n, nscal, st)
+    !! Refuse full-state arrays that do not fit this solver and this simulation.
+    type(sim_t), intent(in) :: s
+    integer(c_int), intent(in) :: nprow, n, nscal
+    type(status_t), intent(inout) :: st
+    character(len=240) :: buf
+    if (.not. s%has_particles) then
+      call st%set(CPDI_ERR_STATE, 'no particles set; build the simulation (grid, materials, particles, bodies, '// &
+                  'options) before its full state')
+    else if (nprow /= NPSTATE .or. nscal /= NSSTATE) then
+      write (buf, '(a,i0,a,i0,a,i0,a,i0,a)') 'full state has ', nprow, ' rows per particle and ', nscal, &
+        ' scalars but this solver uses ', NPSTATE, ' and ', NSSTATE, &
+        '; it comes from another solver version, rerun from t = 0'
+      call st%set(CPDI_ERR_INPUT, trim(buf))
+    else if (n /= s%p%n) then
+      write (buf, '(a,i0,a,i0,a)') 'full state holds ', n, ' particles but the simulation has ', s%p%n, &
+        '; restore it into a simulation built from the same case'
+      call st%set(CPDI_ERR_INPUT, trim(buf))
+    end if
+  end subroutine check_full_state_dims
+
+  subroutine cpdi_get_full_state(handle, nprow, n, nscal, pstate, sstate, ierr, msg)
+    !! Copy out everything stepping depends on, so that a simulation rebuilt from the same
+    !! case and given this state by cpdi_set_full_state continues bit for bit.
+    !! pstate(:, ip) = [x(2), v(2), F(4), L(4), sig(4), r(4), bf(2), vol, psi, jbar];
+    !! sstate = [t, steps, smax, visc_dt, dt_last, diag(NDIAG), timers(NTIMER)].
+    !! Mass, vol0, r0, material and body come from the case and are not included; grid,
+    !! shape and projection arrays are rebuilt at every step and carry no state.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: nprow, n, nscal
+    real(c_double), intent(out) :: pstate(nprow, n)
+    real(c_double), intent(out) :: sstate(nscal)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    pstate = 0.0_wp
+    sstate = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) call check_full_state_dims(s, nprow, n, nscal, st)
+    if (st%ok()) then
+      pstate(1:2, :) = s%p%x
+      pstate(3:4, :) = s%p%v
+      pstate(5:8, :) = s%p%F
+      pstate(9:12, :) = s%p%L
+      pstate(13:16, :) = s%p%sig
+      pstate(17:20, :) = s%p%r
+      pstate(21:22, :) = s%p%bf
+      pstate(23, :) = s%p%vol
+      pstate(24, :) = s%p%psi
+      pstate(25, :) = s%p%jbar
+      sstate(1) = s%t
+      sstate(2) = real(s%steps, wp)
+      sstate(3) = s%smax
+      sstate(4) = s%visc_dt
+      sstate(5) = s%dt_last
+      sstate(6:5 + NDIAG) = s%diag
+      sstate(6 + NDIAG:NSSTATE) = s%timers
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_get_full_state
+
+  subroutine cpdi_set_full_state(handle, nprow, n, nscal, pstate, sstate, ierr, msg)
+    !! Restore a state written by cpdi_get_full_state (layout there). Call it after the
+    !! set_* routines, which mark the stress as stale: this restores the stress and the
+    !! signal speed as they were, so the next step does not recompute (and re-accumulate)
+    !! anything and continues bit for bit.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: nprow, n, nscal
+    real(c_double), intent(in) :: pstate(nprow, n)
+    real(c_double), intent(in) :: sstate(nscal)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: ip
+    character(len=200) :: buf
+    call lookup(handle, s, st)
+    if (st%ok()) call check_full_state_dims(s, nprow, n, nscal, st)
+    if (st%ok()) then
+      if (.not. (finite_all(reshape(pstate, [nprow*n])) .and. finite_all(sstate))) then
+        call st%set(CPDI_ERR_INPUT, 'full state contains NaN or Inf; it is damaged, use another checkpoint '// &
+                    'or rerun from t = 0')
+      else if (.not. (sstate(1) >= 0.0_wp .and. sstate(2) >= 0.0_wp .and. sstate(2) == aint(sstate(2)) &
+                      .and. sstate(2) < 2.0_wp**53 .and. sstate(4) > 0.0_wp .and. sstate(5) >= 0.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'full state has a negative time or time step, a step count that is not '// &
+                    'a whole number, or a viscous limit <= 0; it is damaged, use another checkpoint')
+      end if
+    end if
+    if (st%ok()) then
+      do ip = 1, n
+        if (.not. (det2(pstate(5:8, ip)) > 0.0_wp .and. det2(pstate(17:20, ip)) > 0.0_wp .and. &
+                   pstate(23, ip) > 0.0_wp .and. pstate(25, ip) > 0.0_wp)) then
+          write (buf, '(a,i0,a)') 'full state of particle ', ip, ' has det F, domain area, volume or J <= 0; '// &
+            'it is damaged, use another checkpoint or rerun from t = 0'
+          call st%set(CPDI_ERR_INPUT, trim(buf))
+          exit
+        end if
+      end do
+    end if
+    if (st%ok()) then
+      s%p%x = pstate(1:2, :)
+      s%p%v = pstate(3:4, :)
+      s%p%F = pstate(5:8, :)
+      s%p%L = pstate(9:12, :)
+      s%p%sig = pstate(13:16, :)
+      s%p%r = pstate(17:20, :)
+      s%p%bf = pstate(21:22, :)
+      s%p%vol = pstate(23, :)
+      s%p%psi = pstate(24, :)
+      s%p%jbar = pstate(25, :)
+      s%t = sstate(1)
+      s%steps = int(sstate(2), kind(s%steps))
+      s%smax = sstate(3)
+      s%visc_dt = sstate(4)
+      s%dt_last = sstate(5)
+      s%diag = sstate(6:5 + NDIAG)
+      s%timers = sstate(6 + NDIAG:NSSTATE)
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_full_state
 end module cpdi_api

@@ -13,6 +13,8 @@ program memcheck_driver
   integer(c_int), allocatable :: mat(:), body(:)
   real(c_double) :: props(8, 2)
   integer :: failures
+  integer(c_int) :: nprow, nscal
+  real(c_double), allocatable :: ps(:, :), ss(:)
 
   failures = 0
   dx = 0.01_c_double
@@ -65,6 +67,16 @@ program memcheck_driver
                         [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.1_c_double], ierr, msg); call expect_ok('options nodal')
   call cpdi_advance(h, 0.06_c_double, 50, nsteps, t, ierr, msg); call expect_ok('advance nodal')
+  ! checkpoint round trip: full state out, back in, step on; a damaged state is refused
+  call cpdi_full_state_size(nprow, nscal, ierr, msg); call expect_ok('full state size')
+  allocate (ps(nprow, n), ss(nscal))
+  call cpdi_get_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_ok('get full state')
+  call cpdi_set_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_ok('set full state')
+  call cpdi_advance(h, 0.065_c_double, 20, nsteps, t, ierr, msg); call expect_ok('advance after restore')
+  ss(1) = -1.0_c_double
+  call cpdi_set_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_error('negative time')
+  call cpdi_get_full_state(h, nprow, n - 1, nscal, ps(:, 1:n - 1), ss, ierr, msg); call expect_error('wrong n')
+  deallocate (ps, ss)
   ! error paths must return cleanly
   call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.0_c_double, [1, 1, 1, 0], ierr, msg)
   call expect_error('zero cell size')
