@@ -95,7 +95,9 @@ def test_full_state_restores_bit_for_bit(path, sets, t1, t2):
 @pytest.mark.parametrize("field", ["sigma", "smax"])
 def test_the_comparison_sees_one_ulp_of_restored_state(field):
     """The bitwise comparisons above can fail: one ulp more in the restored stress (sxx of
-    every particle) or signal speed changes the continued run."""
+    every particle), or a few ulps more in the signal speed, changes the continued run. (The
+    step is cfl h / smax rounded: one ulp of smax is absorbed by that rounding for some
+    states, so the signal speed is moved by 8 ulps.)"""
     case = load(WATER, SMALL)
     a, _ = runner.build(case)
     a.advance(0.03)
@@ -106,7 +108,8 @@ def test_the_comparison_sees_one_ulp_of_restored_state(field):
         p[row] = np.nextafter(p[row], np.inf)
     else:
         i = FULL_STATE_SCALARS.index("smax")
-        s[i] = np.nextafter(s[i], np.inf)
+        for _ in range(8):
+            s[i] = np.nextafter(s[i], np.inf)
     b, _ = runner.build(case)
     b.set_full_state(p, s)
     a.advance(0.04)

@@ -136,17 +136,6 @@ contains
     wq = 0.25_wp
   end subroutine quadrature
 
-  pure subroutine cell_ij(g, x, i, j)
-    !! 0-based column and row of the padded-grid cell holding x (clamped to the grid).
-    type(grid_t), intent(in) :: g
-    real(wp), intent(in) :: x(2)
-    integer(ik), intent(out) :: i, j
-    real(wp) :: rh
-    rh = 1.0_wp/g%h
-    i = min(max(int((x(1) - g%gorig(1))*rh), 0), g%nn(1) - 2)
-    j = min(max(int((x(2) - g%gorig(2))*rh), 0), g%nn(2) - 2)
-  end subroutine cell_ij
-
   subroutine projection_setup(pr, mode, shape, g, p, mask, st)
     !! Build the operator of the current configuration for mode PROJ_CELL or PROJ_NODAL.
     type(projection_t), intent(inout) :: pr
@@ -199,27 +188,13 @@ contains
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
-    integer(ik) :: c, lo, hi, ip, q, nq, i, j, imin, imax, span
-    real(wp) :: xq(2, 4), wq(4)
+    integer(ik) :: c, lo, hi, span
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
     span = 1
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, nq, i, j, imin, imax, xq, wq) &
-    !$omp reduction(max:span)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) reduction(max:span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
-      do ip = lo, hi
-        call quadrature(shape, p%x(:, ip), p%r(:, ip), p%r0(:, ip), nq, xq, wq)
-        imin = huge(1_ik)
-        imax = 0
-        do q = 1, nq
-          call cell_ij(g, xq(:, q), i, j)
-          pr%qc(q, ip) = i + 1 + j*(g%nn(1) - 1)
-          imin = min(imin, j)
-          imax = max(imax, j)
-        end do
-        pr%row(ip) = imin
-        span = max(span, imax - imin + 1)
-      end do
+      call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, span)
     end do
     !$omp end parallel do
     call strips_build(pr%sp, pr%row, span)
@@ -231,6 +206,30 @@ contains
     !$omp end parallel do
   end subroutine setup_cell
 
+  subroutine locate_block(lo, hi, shape, x, r, r0, gorig, rh, nn, qc, row, span)
+    !! Cells of the quadrature points of particles lo..hi (plain arrays), their lowest
+    !! cell row, and the running tallest span of rows.
+    integer(ik), intent(in) :: lo, hi, shape, nn(2)
+    real(wp), intent(in) :: x(2, *), r(4, *), r0(4, *), gorig(2), rh
+    integer(ik), intent(inout) :: qc(4, *), row(*), span
+    integer(ik) :: ip, q, nq, i, j, jmin, jmax
+    real(wp) :: xq(2, 4), wq(4)
+    do ip = lo, hi
+      call quadrature(shape, x(:, ip), r(:, ip), r0(:, ip), nq, xq, wq)
+      jmin = huge(1_ik)
+      jmax = 0
+      do q = 1, nq
+        i = min(max(int((xq(1, q) - gorig(1))*rh), 0), nn(1) - 2)
+        j = min(max(int((xq(2, q) - gorig(2))*rh), 0), nn(2) - 2)
+        qc(q, ip) = i + 1 + j*(nn(1) - 1)
+        jmin = min(jmin, j)
+        jmax = max(jmax, j)
+      end do
+      row(ip) = jmin
+      span = max(span, jmax - jmin + 1)
+    end do
+  end subroutine locate_block
+
   subroutine scatter_cell(pr, p, mask, acc, val)
     !! acc(c) = sum over quadrature points in cell c of w_q m_p (val_p if present), by
     !! two-colour strips: bitwise the same at any thread count.
@@ -239,28 +238,43 @@ contains
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: acc(:)
     real(wp), intent(in), optional :: val(:)
-    integer(ik) :: colour, b, m, ip, q
-    real(wp) :: mw, wq
-    logical :: weighted
-    weighted = present(val)
+    integer(ik) :: colour, b
+    real(wp) :: wq
     wq = 1.0_wp/real(pr%nq, wp)
     acc = 0.0_wp
     do colour = 1, 2
-      !$omp parallel do schedule(dynamic, 1) default(shared) private(b, m, ip, q, mw)
+      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, pr%sp%nstrip, 2
-        do m = pr%sp%start(b), pr%sp%start(b + 1) - 1
-          ip = pr%sp%perm(m)
-          if (.not. mask(ip)) cycle
-          mw = p%m(ip)*wq
-          if (weighted) mw = mw*val(ip)
-          do q = 1, pr%nq
-            acc(pr%qc(q, ip)) = acc(pr%qc(q, ip)) + mw
-          end do
-        end do
+        if (present(val)) then
+          call scatter_strip(pr%sp%perm(pr%sp%start(b):pr%sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, &
+                             acc, val)
+        else
+          call scatter_strip(pr%sp%perm(pr%sp%start(b):pr%sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, acc)
+        end if
       end do
       !$omp end parallel do
     end do
   end subroutine scatter_cell
+
+  subroutine scatter_strip(perm, nq, qc, pm, mask, wq, acc, val)
+    !! One strip of scatter_cell, on plain arrays.
+    integer(ik), intent(in) :: perm(:), nq, qc(4, *)
+    real(wp), intent(in) :: pm(*), wq
+    logical, intent(in) :: mask(*)
+    real(wp), intent(inout) :: acc(*)
+    real(wp), intent(in), optional :: val(:)
+    integer(ik) :: i, ip, q
+    real(wp) :: mw
+    do i = 1, size(perm)
+      ip = perm(i)
+      if (.not. mask(ip)) cycle
+      mw = pm(ip)*wq
+      if (present(val)) mw = mw*val(ip)
+      do q = 1, nq
+        acc(qc(q, ip)) = acc(qc(q, ip)) + mw
+      end do
+    end do
+  end subroutine scatter_strip
 
   subroutine apply_cell(pr, p, mask, val)
     !! Mass-weighted cell averages of val, gathered back to the quadrature points.
@@ -268,24 +282,34 @@ contains
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: val(:)
-    integer(ik) :: c, lo, hi, ip, q
-    real(wp) :: acc, wq
+    integer(ik) :: c, lo, hi
     call scatter_cell(pr, p, mask, pr%rhs, val)
-    wq = 1.0_wp/real(pr%nq, wp)
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, acc)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
-      do ip = lo, hi
-        if (.not. mask(ip)) cycle
-        acc = 0.0_wp
-        do q = 1, pr%nq
-          acc = acc + wq*(pr%rhs(pr%qc(q, ip))*pr%hd(pr%qc(q, ip)))
-        end do
-        val(ip) = acc
-      end do
+      call gather_block(lo, hi, pr%nq, pr%qc, mask, pr%rhs, pr%hd, val)
     end do
     !$omp end parallel do
   end subroutine apply_cell
+
+  subroutine gather_block(lo, hi, nq, qc, mask, rhs, rhd, val)
+    !! val_p = sum_q w_q rhs(c_q) / m(c_q) for particles lo..hi, plain arrays.
+    integer(ik), intent(in) :: lo, hi, nq, qc(4, *)
+    logical, intent(in) :: mask(*)
+    real(wp), intent(in) :: rhs(*), rhd(*)
+    real(wp), intent(inout) :: val(:)
+    integer(ik) :: ip, q
+    real(wp) :: acc, wq
+    wq = 1.0_wp/real(nq, wp)
+    do ip = lo, hi
+      if (.not. mask(ip)) cycle
+      acc = 0.0_wp
+      do q = 1, nq
+        acc = acc + wq*(rhs(qc(q, ip))*rhd(qc(q, ip)))
+      end do
+      val(ip) = acc
+    end do
+  end subroutine gather_block
 
   subroutine setup_nodal(pr, shape, g, p, mask, st)
     !! Consistent nodal projection: H_ij = sum_p m_p sum_q w_q N_i(x_q) N_j(x_q) on the

@@ -302,6 +302,7 @@ contains
     !! colour by colour (cpdi_schedule).
     type(sim_t), intent(inout) :: s
     integer(ik) :: k, b, colour
+    logical :: simple
 
     !$omp parallel do schedule(static) default(shared) private(k)
     do k = 1, s%g%nnodes
@@ -322,14 +323,53 @@ contains
       s%g%gmy = 0.0_wp
       s%g%gv = 0.0_wp
     end if
+    simple = s%g%nf == 1 .and. .not. s%any_rigid
     do colour = 1, 2
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, s%sp%nstrip, 2
-        call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+        if (simple) then
+          call p2g_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%ns, s%sh%cnt, s%sh%idx, &
+                                s%sh%w, s%sh%gx, s%sh%gy, s%p%m, s%p%v, s%p%vol, s%p%sig, s%p%bf, &
+                                s%opt%gravity, s%g%m, s%g%px, s%g%py, s%g%fx, s%g%fy)
+        else
+          call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+        end if
       end do
       !$omp end parallel do
     end do
   end subroutine p2g
+
+  subroutine p2g_strip_simple(perm, ns, cnt, idx, w, gx, gy, pm, pv, pvol, psig, pbf, grav, m, px, py, fx, fy)
+    !! P2G of the particles perm (one strip) for one velocity field without rigid
+    !! particles (the common case): plain arrays, so the compiler knows nothing aliases.
+    integer(ik), intent(in) :: perm(:), ns, cnt(:), idx(ns, *)
+    real(wp), intent(in) :: w(ns, *), gx(ns, *), gy(ns, *), pm(*), pv(2, *), pvol(*), psig(4, *), pbf(2, *), grav(2)
+    real(wp), intent(inout) :: m(*), px(*), py(*), fx(*), fy(*)
+    integer(ik) :: i, ip, k, a
+    real(wp) :: mp, mvx, mvy, sxx, syy, sxy, bx, by, wk, gxk, gyk
+    do i = 1, size(perm)
+      ip = perm(i)
+      mp = pm(ip)
+      mvx = mp*pv(1, ip)
+      mvy = mp*pv(2, ip)
+      sxx = pvol(ip)*psig(1, ip)
+      syy = pvol(ip)*psig(2, ip)
+      sxy = pvol(ip)*psig(3, ip)
+      bx = mp*(grav(1) + pbf(1, ip))
+      by = mp*(grav(2) + pbf(2, ip))
+      do a = 1, cnt(ip)
+        k = idx(a, ip)
+        wk = w(a, ip)
+        gxk = gx(a, ip)
+        gyk = gy(a, ip)
+        m(k) = m(k) + wk*mp
+        px(k) = px(k) + wk*mvx
+        py(k) = py(k) + wk*mvy
+        fx(k) = fx(k) - (sxx*gxk + sxy*gyk) + wk*bx
+        fy(k) = fy(k) - (sxy*gxk + syy*gyk) + wk*by
+      end do
+    end do
+  end subroutine p2g_strip_simple
 
   subroutine p2g_strip(s, m0, m1)
     !! P2G of the particles perm(m0:m1) (one strip).
@@ -474,13 +514,22 @@ contains
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     integer(ik) :: c, lo, hi
-    logical :: musl
+    logical :: musl, simple
 
     musl = s%opt%update == UPDATE_MUSL
+    simple = s%g%nf == 1 .and. .not. s%any_rigid
     !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
-      call g2p_block(s, dt, lo, hi, s%red(:, c))
+      if (simple) then
+        call g2p_block_simple(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%w, s%g%vx, s%g%vy, s%g%px, s%g%py, &
+                              s%p%m, s%p%v, s%p%x, s%p%bf, s%opt%flip, dt, s%opt%gravity, s%g%origin, &
+                              s%g%origin + real(s%g%ncell, wp)*s%g%h, s%g%walls /= WALL_OPEN, s%red(:, c))
+        if (.not. musl) call vgrad_block(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%gx, s%sh%gy, s%g%vx, s%g%vy, &
+                                         s%p%L)
+      else
+        call g2p_block(s, dt, lo, hi, s%red(:, c))
+      end if
     end do
     !$omp end parallel do
     s%diag(4) = sum(s%red(1, :))
@@ -573,6 +622,110 @@ contains
     red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
   end subroutine g2p_block
 
+  subroutine g2p_block_simple(lo, hi, ns, cnt, idx, w, vx, vy, vnx0, vny0, pm, pv, px, pbf, flip, dt, grav, &
+                              xmin, xmax, closed, red)
+    !! g2p_block for one velocity field without rigid particles (the common case), on plain
+    !! arrays; the same arithmetic in the same order. vnx0, vny0: nodal velocity at t^n.
+    integer(ik), intent(in) :: lo, hi, ns, cnt(:), idx(ns, *)
+    real(wp), intent(in) :: w(ns, *), vx(*), vy(*), vnx0(*), vny0(*), pm(*), pbf(2, *), flip, dt, grav(2), &
+                            xmin(2), xmax(2)
+    real(wp), intent(inout) :: pv(2, *), px(2, *)
+    logical, intent(in) :: closed(4)
+    real(wp), intent(out) :: red(6)
+    integer(ik) :: ip, k, a, nclamp
+    real(wp) :: dvx, dvy, vnx, vny, wk, xo(2), ke, mom(2), wg, wb, mp
+    ke = 0.0_wp
+    mom = 0.0_wp
+    wg = 0.0_wp
+    wb = 0.0_wp
+    nclamp = 0
+    do ip = lo, hi
+      mp = pm(ip)
+      xo = px(:, ip)
+      dvx = 0.0_wp
+      dvy = 0.0_wp
+      vnx = 0.0_wp
+      vny = 0.0_wp
+      do a = 1, cnt(ip)
+        k = idx(a, ip)
+        wk = w(a, ip)
+        vnx = vnx + wk*vx(k)
+        vny = vny + wk*vy(k)
+        dvx = dvx + wk*(vx(k) - vnx0(k))
+        dvy = dvy + wk*(vy(k) - vny0(k))
+      end do
+      pv(1, ip) = flip*(pv(1, ip) + dvx) + (1.0_wp - flip)*vnx
+      pv(2, ip) = flip*(pv(2, ip) + dvy) + (1.0_wp - flip)*vny
+      px(1, ip) = xo(1) + dt*vnx
+      px(2, ip) = xo(2) + dt*vny
+      if (closed(1) .and. px(1, ip) < xmin(1)) then
+        px(1, ip) = xmin(1)
+        nclamp = nclamp + 1
+      end if
+      if (closed(2) .and. px(1, ip) > xmax(1)) then
+        px(1, ip) = xmax(1)
+        nclamp = nclamp + 1
+      end if
+      if (closed(3) .and. px(2, ip) < xmin(2)) then
+        px(2, ip) = xmin(2)
+        nclamp = nclamp + 1
+      end if
+      if (closed(4) .and. px(2, ip) > xmax(2)) then
+        px(2, ip) = xmax(2)
+        nclamp = nclamp + 1
+      end if
+      ke = ke + 0.5_wp*mp*(pv(1, ip)**2 + pv(2, ip)**2)
+      mom = mom + mp*pv(:, ip)
+      wg = wg + mp*dot_product(grav, px(:, ip) - xo)
+      wb = wb + mp*dot_product(pbf(:, ip), px(:, ip) - xo)
+    end do
+    red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
+  end subroutine g2p_block_simple
+
+  subroutine vgrad_block(lo, hi, ns, cnt, idx, gx, gy, vx, vy, l)
+    !! Velocity gradient of particles lo..hi from one nodal velocity field, on plain arrays
+    !! (the same sums as velocity_gradient).
+    integer(ik), intent(in) :: lo, hi, ns, cnt(:), idx(ns, *)
+    real(wp), intent(in) :: gx(ns, *), gy(ns, *), vx(*), vy(*)
+    real(wp), intent(inout) :: l(4, *)
+    integer(ik) :: ip, a, k
+    real(wp) :: l1, l2, l3, l4
+    do ip = lo, hi
+      l1 = 0.0_wp
+      l2 = 0.0_wp
+      l3 = 0.0_wp
+      l4 = 0.0_wp
+      do a = 1, cnt(ip)
+        k = idx(a, ip)
+        l1 = l1 + vx(k)*gx(a, ip)
+        l2 = l2 + vy(k)*gx(a, ip)
+        l3 = l3 + vx(k)*gy(a, ip)
+        l4 = l4 + vy(k)*gy(a, ip)
+      end do
+      l(:, ip) = [l1, l2, l3, l4]
+    end do
+  end subroutine vgrad_block
+
+  subroutine remap_strip_simple(perm, ns, cnt, idx, w, pm, pv, qx, qy)
+    !! MUSL momentum scatter of the particles perm (one strip) to one field, plain arrays.
+    integer(ik), intent(in) :: perm(:), ns, cnt(:), idx(ns, *)
+    real(wp), intent(in) :: w(ns, *), pm(*), pv(2, *)
+    real(wp), intent(inout) :: qx(*), qy(*)
+    integer(ik) :: i, ip, k, a
+    real(wp) :: mvx, mvy, wk
+    do i = 1, size(perm)
+      ip = perm(i)
+      mvx = pm(ip)*pv(1, ip)
+      mvy = pm(ip)*pv(2, ip)
+      do a = 1, cnt(ip)
+        k = idx(a, ip)
+        wk = w(a, ip)
+        qx(k) = qx(k) + wk*mvx
+        qy(k) = qy(k) + wk*mvy
+      end do
+    end do
+  end subroutine remap_strip_simple
+
   pure function velocity_gradient(sh, vx, vy, ip) result(l)
     !! L_p = sum_i v_i (x) grad S_ip, layout [L11, L21, L12, L22].
     type(shape_t), intent(in) :: sh
@@ -605,7 +758,12 @@ contains
     do colour = 1, 2
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, s%sp%nstrip, 2
-        call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+        if (s%g%nf == 1) then
+          call remap_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%ns, s%sh%cnt, s%sh%idx, &
+                                  s%sh%w, s%p%m, s%p%v, s%g%vx, s%g%vy)
+        else
+          call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
+        end if
       end do
       !$omp end parallel do
     end do
@@ -617,6 +775,10 @@ contains
     !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
+      if (s%g%nf == 1 .and. .not. s%any_rigid) then
+        call vgrad_block(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%gx, s%sh%gy, s%g%vx, s%g%vy, s%p%L)
+        cycle
+      end if
       do ip = lo, hi
         if (s%rigid(s%p%mat(ip))) cycle
         f = s%field(ip)
