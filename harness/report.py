@@ -21,6 +21,7 @@ import html
 import json
 import math
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -387,6 +388,58 @@ def _html_gate_summary(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+BENCH_PHASES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection")
+BENCH_HEADER = ["shape", "particles", "threads", "M updates/s (median)", "bytes/particle"] + \
+    [f"{p} ns" for p in BENCH_PHASES]
+
+
+def _bench_intro(bench: dict) -> str:
+    prov = bench.get("provenance") or {}
+    sha = str(prov.get("git_sha", "unknown"))[:12] + (" (dirty)" if prov.get("git_dirty") else "")
+    return (f"From reports/bench/bench.json (make bench): git {sha}, {prov.get('date', '')}, "
+            f"{bench.get('repeats', 1)} repeats per row, projection {bench.get('projection', '?')}"
+            f"{', quick' if bench.get('quick') else ''}. It is the last benchmark run on this machine, "
+            f"not part of this verify run; compare its git SHA with the report's.")
+
+
+def _bench_rows(bench: dict) -> list[list[str]]:
+    rows = []
+    for r in bench.get("cases", []):
+        ph = r.get("phase_ns_per_update") or {}
+        rows.append([r.get("shape", ""), str(r.get("particles", "")), str(r.get("threads", "")),
+                     f"{r.get('particle_updates_per_s', 0.0) / 1e6:.2f}", f"{r.get('bytes_per_particle', 0.0):.0f}"]
+                    + [f"{ph.get(p, 0.0):.0f}" for p in BENCH_PHASES])
+    return rows
+
+
+def _bench_summary_rows(bench: dict) -> list[list[str]]:
+    return [[k, _fmt(v)] for k, v in (bench.get("summary") or {}).items() if v is not None]
+
+
+def _html_bench(out_dir: Path, bench: dict | None) -> str:
+    if not bench:
+        return ""
+    parts = ['<h2 id="performance">Performance</h2>', f"<p>{html.escape(_bench_intro(bench))}</p>"]
+    if bench.get("summary"):
+        parts.append(_html_rows(["target", "value"], [[html.escape(a), html.escape(b)]
+                                                     for a, b in _bench_summary_rows(bench)]))
+    parts.append(_html_rows(BENCH_HEADER, [[html.escape(c) for c in row] for row in _bench_rows(bench)]))
+    for fig in ("bench.png", "bench_phases.png"):
+        if _figure_path(out_dir, fig).is_file():
+            parts.append(_html_figure(out_dir, fig))
+    return "\n".join(parts)
+
+
+def _md_bench(bench: dict | None) -> str:
+    if not bench:
+        return ""
+    parts = ["## Performance", _bench_intro(bench)]
+    if bench.get("summary"):
+        parts.append(_md_table(["target", "value"], _bench_summary_rows(bench)))
+    parts.append(_md_table(BENCH_HEADER, _bench_rows(bench)))
+    return "\n\n".join(parts)
+
+
 def render_html(
     out_dir: Path,
     results: list[CheckResult],
@@ -394,6 +447,7 @@ def render_html(
     quick: bool,
     gate_summary: list[dict] | None,
     passed: bool,
+    bench: dict | None = None,
 ) -> str:
     parts = [
         "<!DOCTYPE html>",
@@ -434,6 +488,8 @@ def render_html(
         parts.append(_html_gate_summary(gate_summary))
     parts.append("<h2>Checks</h2>")
     parts.extend(_html_check(out_dir, r) for r in results)
+    if bench:
+        parts.append(_html_bench(out_dir, bench))
     parts += ["</main>", "</body>", "</html>"]
     return "\n".join(parts) + "\n"
 
@@ -485,7 +541,8 @@ def _md_check(r: CheckResult) -> str:
 
 
 def render_markdown(
-    results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None, passed: bool
+    results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None, passed: bool,
+    bench: dict | None = None,
 ) -> str:
     parts = [f"# {TITLE}"]
     if quick:
@@ -513,6 +570,8 @@ def render_markdown(
         parts.append(_md_table(list(GATE_SUMMARY_FIELDS), rows))
     parts.append("## Checks")
     parts.extend(_md_check(r) for r in results)
+    if bench:
+        parts.append(_md_bench(bench))
     return "\n\n".join(parts) + "\n"
 
 
@@ -525,12 +584,13 @@ def _render(out_dir: Path, payload: dict[str, Any]) -> dict[str, Any]:
     provenance = dict(payload.get("provenance") or {})
     quick = bool(payload.get("quick", False))
     gate_summary = payload.get("gate_summary") or None
+    bench = payload.get("bench") or None
     metrics = build_metrics(results, provenance, quick, gate_summary)
     _dump(out_dir / "metrics.json", metrics)
     passed = bool(metrics["passed"])
-    md = render_markdown(results, provenance, quick, gate_summary, passed)
+    md = render_markdown(results, provenance, quick, gate_summary, passed, bench)
     (out_dir / "report.md").write_text(md, encoding="utf-8")
-    page = render_html(out_dir, results, provenance, quick, gate_summary, passed)
+    page = render_html(out_dir, results, provenance, quick, gate_summary, passed, bench)
     (out_dir / "index.html").write_text(page, encoding="utf-8")
     return metrics
 
@@ -541,8 +601,10 @@ def write_report(
     provenance: dict,
     quick: bool,
     gate_summary: list[dict] | None = None,
+    bench_dir: Path | None = None,
 ) -> dict[str, Any]:
-    """Write the full report into ``out_dir`` and return the metrics.json dict.
+    """Write the full report into ``out_dir`` and return the metrics.json dict. With
+    ``bench_dir`` holding a bench.json (make bench), its numbers and plots are included.
 
     Overall ``passed`` is true iff there is at least one check, every check passed and
     no ``gate_summary`` row has status ``"regressed"``.
@@ -556,10 +618,27 @@ def write_report(
         "provenance": provenance,
         "gate_summary": gate_summary,
         "results": [r.to_dict() for r in results],
+        "bench": _load_bench(out_dir, bench_dir),
     }
     _dump(out_dir / "results.json", payload)
     # Render from the stored JSON so that rerender() gives byte-identical output.
     return _render(out_dir, json.loads((out_dir / "results.json").read_text(encoding="utf-8")))
+
+
+def _load_bench(out_dir: Path, bench_dir: Path | None) -> dict | None:
+    """bench.json of bench_dir (None if absent or unreadable); its plots are copied into
+    the report's figures/ so the report stays self-contained."""
+    if bench_dir is None or not (Path(bench_dir) / "bench.json").is_file():
+        return None
+    try:
+        bench = json.loads((Path(bench_dir) / "bench.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
+    for src, dst in (("bench.png", "bench.png"), ("phases.png", "bench_phases.png")):
+        if (Path(bench_dir) / src).is_file():
+            shutil.copyfile(Path(bench_dir) / src, out_dir / "figures" / dst)
+    return bench
 
 
 def rerender(report_dir: Path) -> None:

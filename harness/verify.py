@@ -61,7 +61,8 @@ def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tupl
     results = run_checks(names, out_dir, quick, progress)
     draft = report.build_metrics(results, prov, quick)
     rows = gate.compare(draft, gate.load_gold(), "quick" if quick else "full")
-    metrics = report.write_report(out_dir, results, prov, quick, gate_summary=rows or None)
+    metrics = report.write_report(out_dir, results, prov, quick, gate_summary=rows or None,
+                                  bench_dir=REPO / "reports" / "bench")
     width = max(len(r.name) for r in results)
     print("\n" + "check".ljust(width) + "  result  verdict")
     for r in results:

@@ -249,3 +249,34 @@ def test_provenance_git_repo_dirty_flag(tmp_path: Path) -> None:
     assert provenance.collect(tmp_path)["dirty"] is False  # generated output ignored
     (tmp_path / "code.f90").write_text("x")
     assert provenance.collect(tmp_path)["dirty"] is True
+
+
+def test_bench_numbers_in_the_report(tmp_path: Path) -> None:
+    """The last `make bench` run (bench.json and its plots) is carried into the verify report,
+    with its own git SHA, and survives a re-render byte for byte."""
+    bench_dir = tmp_path / "bench"
+    bench_dir.mkdir()
+    row = {"name": "dam_break_32k", "shape": "cpdi", "particles": 32768, "threads": 2,
+           "particle_updates_per_s": 7.9e6, "bytes_per_particle": 812.0,
+           "phase_ns_per_update": {"shape": 36.0, "p2g": 22.0, "projection": 27.0}}
+    (bench_dir / "bench.json").write_text(json.dumps({
+        "cases": [row], "summary": {"cpdi_32k_speedup_2threads": 1.93}, "repeats": 3, "projection": "cell",
+        "provenance": {"git_sha": "abc123def4567890", "date": "2026-11-21"}}))
+    fig, ax = plt.subplots()
+    ax.plot([0, 1])
+    fig.savefig(bench_dir / "bench.png")
+    plt.close(fig)
+    good = CheckResult(name="a", requirement="r", gates=[Gate.at_most("m", 1.0, 2.0)])
+    out = tmp_path / "r"
+    report.write_report(out, [good], PROV, quick=False, bench_dir=bench_dir)
+    md = (out / "report.md").read_text()
+    assert "## Performance" in md and "abc123def456" in md
+    assert "| cpdi | 32768 | 2 | 7.90 | 812 |" in md
+    assert "cpdi_32k_speedup_2threads" in md
+    page = (out / "index.html").read_text()
+    assert "bench.png" in page and 'id="performance"' in page
+    before = (page, md)
+    report.rerender(out)
+    assert ((out / "index.html").read_text(), (out / "report.md").read_text()) == before
+    report.write_report(tmp_path / "plain", [good], PROV, quick=False)
+    assert "Performance" not in (tmp_path / "plain" / "report.md").read_text()
