@@ -93,10 +93,10 @@ contains
     integer(ik), intent(in) :: n
     type(status_t), intent(inout) :: st
     integer :: ierr
-    if (allocated(pr%hd)) deallocate (pr%hd, pr%rhs, pr%res, pr%act, pr%node, pr%qc, pr%row)
+    if (allocated(pr%hd)) deallocate (pr%hd, pr%rhs, pr%qc, pr%row)
     if (allocated(pr%xs)) deallocate (pr%xs, pr%rs)
-    allocate (pr%hd(g%nnodes), pr%rhs(g%nnodes), pr%res(g%nnodes), pr%act(g%nnodes), pr%node(g%nnodes), &
-              pr%qc(4, n), pr%row(n), stat=ierr)
+    if (allocated(pr%res)) deallocate (pr%res, pr%act, pr%node)
+    allocate (pr%hd(g%nnodes), pr%rhs(g%nnodes), pr%qc(4, n), pr%row(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate projection storage; use fewer particles')
       return
@@ -333,7 +333,14 @@ contains
     n1 = g%nn(1)
     n2 = g%nn(2)
     xmajor = n1 <= n2        ! number nodes so the band width is the shorter row
-    ! the configuration of the operator, for the applications that follow
+    ! nodal work arrays and the configuration of the operator (first nodal use only)
+    if (.not. allocated(pr%res)) then
+      allocate (pr%res(g%nnodes), pr%act(g%nnodes), pr%node(g%nnodes), stat=ierr)
+      if (ierr /= 0) then
+        call st%set(CPDI_ERR_ALLOC, 'could not allocate the nodal projection storage; use projection = "cell"')
+        return
+      end if
+    end if
     if (allocated(pr%xs)) then
       if (size(pr%xs, 2) /= p%n) deallocate (pr%xs, pr%rs)
     end if
