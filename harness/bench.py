@@ -63,7 +63,6 @@ def _rss_mb() -> float:
 def measure(size: str, shape: str, steps: int) -> dict:
     """Run one benchmark in this process and return its bench.json row."""
     from harness import cases, runner, solver
-
     from harness.seeding import seed
 
     n_per_l = SIZES[size]
