@@ -5,7 +5,9 @@ of water, MUSL, 2x2 particles per cell and the cell-wise volumetric projection o
 gated dam-break configuration). Each (size, shape, threads) runs REPEATS times, each in its
 own subprocess (so its peak memory is its own and OMP_NUM_THREADS takes effect), stepped a
 fixed number of steps after a short warm-up; throughput is particles x steps / wall seconds
-and the median of the repeats is reported, with the solver's own phase timers.
+and the median of the repeats is reported, with the solver's own phase timers. Repeats are
+interleaved across configurations so one slow spell of a shared machine does not sink all
+repeats of one row.
 
 Memory per particle is the growth of peak resident memory over the interpreter with the
 solver library loaded, with (bytes_per_particle) and without (solver_bytes_per_particle)
@@ -194,11 +196,13 @@ def main(quick: bool = False) -> int:
         tqdm = None
     jobs = [(size, shape, threads) for size in sizes for shape in SHAPES for threads in THREADS]
     bar = tqdm(total=len(jobs) * REPEATS, desc="bench", unit="run", leave=False, disable=None) if tqdm else None
-    for size, shape, threads in jobs:
-        runs = []
-        for _ in range(REPEATS):
+    # Repeats are interleaved (round 1 of every job, then round 2, ...): on a shared VM a slow
+    # spell of tens of seconds then hits one repeat of several jobs, not all repeats of one.
+    runs: dict[tuple, list[dict]] = {j: [] for j in jobs}
+    for _ in range(REPEATS):
+        for job in jobs:
             try:
-                runs.append(_run_one(size, shape, threads))
+                runs[job].append(_run_one(*job))
             except RuntimeError as exc:
                 if bar:
                     bar.close()
@@ -206,7 +210,8 @@ def main(quick: bool = False) -> int:
                 return 1
             if bar:
                 bar.update()
-        row = _median_row(runs)
+    for (size, shape, threads) in jobs:
+        row = _median_row(runs[(size, shape, threads)])
         rows.append(row)
         ph = row["phase_ns_per_update"]
         msg = (f"{row['name']:>16s} {shape:5s} {threads}T {row['particles']:7d} p {row['steps']:4d} steps "
