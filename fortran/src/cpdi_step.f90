@@ -594,24 +594,7 @@ contains
           p%x(1, ip) = xo(1) + dt*vnx
           p%x(2, ip) = xo(2) + dt*vny
           if (.not. musl .or. g%nf > 1) p%L(:, ip) = velocity_gradient(sh, g%vx(:, f), g%vy(:, f), ip)
-          ! particles are held on closed walls (the grid already stops their normal motion
-          ! at the wall nodes; this removes the residual drift of wide supports)
-          if (closed(1) .and. p%x(1, ip) < xmin(1)) then
-            p%x(1, ip) = xmin(1)
-            nclamp = nclamp + 1
-          end if
-          if (closed(2) .and. p%x(1, ip) > xmax(1)) then
-            p%x(1, ip) = xmax(1)
-            nclamp = nclamp + 1
-          end if
-          if (closed(3) .and. p%x(2, ip) < xmin(2)) then
-            p%x(2, ip) = xmin(2)
-            nclamp = nclamp + 1
-          end if
-          if (closed(4) .and. p%x(2, ip) > xmax(2)) then
-            p%x(2, ip) = xmax(2)
-            nclamp = nclamp + 1
-          end if
+          call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
         end if
         ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
         mom = mom + mp*p%v(:, ip)
@@ -658,22 +641,7 @@ contains
       pv(2, ip) = flip*(pv(2, ip) + dvy) + (1.0_wp - flip)*vny
       px(1, ip) = xo(1) + dt*vnx
       px(2, ip) = xo(2) + dt*vny
-      if (closed(1) .and. px(1, ip) < xmin(1)) then
-        px(1, ip) = xmin(1)
-        nclamp = nclamp + 1
-      end if
-      if (closed(2) .and. px(1, ip) > xmax(1)) then
-        px(1, ip) = xmax(1)
-        nclamp = nclamp + 1
-      end if
-      if (closed(3) .and. px(2, ip) < xmin(2)) then
-        px(2, ip) = xmin(2)
-        nclamp = nclamp + 1
-      end if
-      if (closed(4) .and. px(2, ip) > xmax(2)) then
-        px(2, ip) = xmax(2)
-        nclamp = nclamp + 1
-      end if
+      call hold_on_walls(px(:, ip), xmin, xmax, closed, nclamp)
       ke = ke + 0.5_wp*mp*(pv(1, ip)**2 + pv(2, ip)**2)
       mom = mom + mp*pv(:, ip)
       wg = wg + mp*dot_product(grav, px(:, ip) - xo)
@@ -681,6 +649,31 @@ contains
     end do
     red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
   end subroutine g2p_block_simple
+
+  pure subroutine hold_on_walls(x, xmin, xmax, closed, nclamp)
+    !! Particles are held on closed walls (the grid already stops their normal motion at the
+    !! wall nodes; this removes the residual drift of wide supports); nclamp counts them.
+    real(wp), intent(inout) :: x(2)
+    real(wp), intent(in) :: xmin(2), xmax(2)
+    logical, intent(in) :: closed(4)
+    integer(ik), intent(inout) :: nclamp
+    if (closed(1) .and. x(1) < xmin(1)) then
+      x(1) = xmin(1)
+      nclamp = nclamp + 1
+    end if
+    if (closed(2) .and. x(1) > xmax(1)) then
+      x(1) = xmax(1)
+      nclamp = nclamp + 1
+    end if
+    if (closed(3) .and. x(2) < xmin(2)) then
+      x(2) = xmin(2)
+      nclamp = nclamp + 1
+    end if
+    if (closed(4) .and. x(2) > xmax(2)) then
+      x(2) = xmax(2)
+      nclamp = nclamp + 1
+    end if
+  end subroutine hold_on_walls
 
   subroutine vgrad_block(lo, hi, ns, cnt, idx, gx, gy, vx, vy, l)
     !! Velocity gradient of particles lo..hi from one nodal velocity field, on plain arrays
