@@ -96,9 +96,7 @@ class SnapshotWriter:
                            f'Format="HDF">{base}/{key}</DataItem></Attribute>')
             out.append("</Grid>")
         out += ["</Grid>", "</Domain>", "</Xdmf>"]
-        tmp = self.xdmf_path.with_suffix(".xdmf.tmp")
-        tmp.write_text("\n".join(out) + "\n")
-        os.replace(tmp, self.xdmf_path)
+        write_text_atomic(self.xdmf_path, "\n".join(out) + "\n")
 
     def close(self) -> None:
         if self._f:
@@ -123,11 +121,16 @@ class SeriesWriter:
         self._fh.close()
 
 
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write JSON atomically (temporary file, then rename)."""
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write a text file atomically (temporary file beside it, then rename)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
+    tmp.write_text(text)
     os.replace(tmp, path)
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write JSON atomically."""
+    write_text_atomic(path, json.dumps(data, indent=2, default=_jsonable) + "\n")
 
 
 def _jsonable(o):

@@ -677,7 +677,9 @@ contains
 
   subroutine vgrad_block(lo, hi, ns, cnt, idx, gx, gy, vx, vy, l)
     !! Velocity gradient of particles lo..hi from one nodal velocity field, on plain arrays
-    !! (the same sums as velocity_gradient).
+    !! (the same sums as velocity_gradient). Calling this from the general paths instead of
+    !! velocity_gradient was tried: the compiler then contracts the sums into FMAs differently
+    !! and contact runs change in the last bits, so merging the two waits for a gold regeneration.
     integer(ik), intent(in) :: lo, hi, ns, cnt(:), idx(ns, *)
     real(wp), intent(in) :: gx(ns, *), gy(ns, *), vx(*), vy(*)
     real(wp), intent(inout) :: l(4, *)
