@@ -20,7 +20,7 @@ module cpdi_contact
   !! lies inside the domain (a node on a wall can only ever be half full); bodies sharing a
   !! node across a gap do not touch.
   use cpdi_kinds, only: wp, ik
-  use cpdi_grid, only: grid_t
+  use cpdi_grid, only: grid_t, inside_fraction
   implicit none
   private
 
@@ -91,32 +91,4 @@ contains
       end do
     end do
   end subroutine contact_correct
-  pure real(wp) function inside_fraction(g, k)
-    !! Fraction of node k's bilinear hat integral that lies inside the physical domain.
-    type(grid_t), intent(in) :: g
-    integer(ik), intent(in) :: k
-    real(wp) :: x(2), lo(2), hi(2)
-    integer :: a
-    x = g%node_x(k)
-    lo = g%origin
-    hi = g%origin + real(g%ncell, wp)*g%h
-    inside_fraction = 1.0_wp
-    do a = 1, 2
-      inside_fraction = inside_fraction*hat_part(x(a) - lo(a), g%h)*hat_part(hi(a) - x(a), g%h)
-    end do
-  end function inside_fraction
-
-  pure real(wp) function hat_part(d, h)
-    !! Share of a 1D hat of half-width h centred at distance d inside a boundary.
-    real(wp), intent(in) :: d, h
-    if (d >= h) then
-      hat_part = 1.0_wp
-    else if (d >= 0.0_wp) then
-      hat_part = 1.0_wp - 0.5_wp*(1.0_wp - d/h)**2
-    else if (d > -h) then
-      hat_part = 0.5_wp*(1.0_wp + d/h)**2
-    else
-      hat_part = 0.0_wp
-    end if
-  end function hat_part
 end module cpdi_contact

@@ -40,7 +40,7 @@ module cpdi_grid
     procedure :: node_x => grid_node_x
   end type grid_t
 
-  public :: grid_init, grid_fields, grid_apply_walls
+  public :: grid_init, grid_fields, grid_apply_walls, inside_fraction
 
 contains
 
@@ -141,17 +141,29 @@ contains
     x(2) = self%gorig(2) + real((k - 1)/self%nn(1), wp)*self%h
   end function grid_node_x
 
-  subroutine grid_apply_walls(g, vx, vy)
+  subroutine grid_apply_walls(g, vx, vy, gv, vfull)
     !! Impose the wall conditions on a nodal velocity (or momentum) field: every node on
     !! or beyond a closed wall loses its normal component (slip) or all of it (noslip).
+    !! With `gv` (the field's nodal volume) and `vfull` (fullness h^2) the wall obeys the
+    !! volume constraint of body contact: a field passes a wall node when it fills the inside
+    !! part of that node's support less than `fullness` times as well as it fills the next
+    !! node inward (fill = volume / inside fraction of the support), i.e. when there is a gap
+    !! between the body and the wall. Without this a falling body stops about a cell above
+    !! the floor, as soon as its domains reach the floor node's support. A body touching the
+    !! wall fills both nodes alike, and a layer thinner than a cell lying on the wall (a flow
+    !! front) fills the wall node better than the next: both stay held. The ratio makes the
+    !! test independent of how much of the nodes' width the body covers (its edges).
     type(grid_t), intent(in) :: g
     real(wp), intent(inout) :: vx(:), vy(:)
+    real(wp), intent(in), optional :: gv(:)
+    real(wp), intent(in), optional :: vfull
     integer(ik) :: i, j, k
 
     if (g%walls(1) /= WALL_OPEN) then
       do j = 1, g%nn(2)
         do i = 1, g%wall_node(1)
           k = i + (j - 1)*g%nn(1)
+          if (released(k, k + 1)) cycle
           vx(k) = 0.0_wp
           if (g%walls(1) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -161,6 +173,7 @@ contains
       do j = 1, g%nn(2)
         do i = g%wall_node(2), g%nn(1)
           k = i + (j - 1)*g%nn(1)
+          if (released(k, k - 1)) cycle
           vx(k) = 0.0_wp
           if (g%walls(2) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -170,6 +183,7 @@ contains
       do j = 1, g%wall_node(3)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
+          if (released(k, k + g%nn(1))) cycle
           vy(k) = 0.0_wp
           if (g%walls(3) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
@@ -179,10 +193,49 @@ contains
       do j = g%wall_node(4), g%nn(2)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
+          if (released(k, k - g%nn(1))) cycle
           vy(k) = 0.0_wp
           if (g%walls(4) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
       end do
     end if
+  contains
+    logical function released(k, kin)
+      !! Field passes wall node k (kin: the next node inward).
+      integer(ik), intent(in) :: k, kin
+      released = .false.
+      if (.not. present(gv)) return
+      if (kin < 1 .or. kin > g%nnodes) return
+      released = gv(k)*inside_fraction(g, kin) < (vfull/g%h**2)*gv(kin)*inside_fraction(g, k)
+    end function released
   end subroutine grid_apply_walls
+  pure real(wp) function inside_fraction(g, k)
+    !! Fraction of node k's bilinear hat integral that lies inside the physical domain
+    !! (1 inside, 1/2 on a wall, 1/4 in a corner, 0 beyond).
+    type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: k
+    real(wp) :: x(2), lo(2), hi(2)
+    integer :: a
+    x = g%node_x(k)
+    lo = g%origin
+    hi = g%origin + real(g%ncell, wp)*g%h
+    inside_fraction = 1.0_wp
+    do a = 1, 2
+      inside_fraction = inside_fraction*hat_part(x(a) - lo(a), g%h)*hat_part(hi(a) - x(a), g%h)
+    end do
+  end function inside_fraction
+
+  pure real(wp) function hat_part(d, h)
+    !! Share of a 1D hat of half-width h centred at distance d inside a boundary.
+    real(wp), intent(in) :: d, h
+    if (d >= h) then
+      hat_part = 1.0_wp
+    else if (d >= 0.0_wp) then
+      hat_part = 1.0_wp - 0.5_wp*(1.0_wp - d/h)**2
+    else if (d > -h) then
+      hat_part = 0.5_wp*(1.0_wp + d/h)**2
+    else
+      hat_part = 0.0_wp
+    end if
+  end function hat_part
 end module cpdi_grid

@@ -69,6 +69,7 @@ module cpdi_step
     integer(ik), allocatable :: body(:)      !! per particle: body index (1-based)
     integer(ik), allocatable :: field(:)     !! per particle: velocity field (1, or its body with contact)
     logical, allocatable :: field_rigid(:)   !! per field: a rigid body (infinite mass in contact)
+    logical, allocatable :: field_solid(:)   !! per field: no fluid particle (walls obey the volume constraint)
     logical :: contact = .false.             !! multi-velocity-field contact between bodies
     real(wp) :: friction = 0.0_wp            !! Coulomb coefficient of contact
     real(wp) :: fullness = 0.9_wp            !! contact needs sum_b V_i^b >= fullness h^2 at the node
@@ -177,14 +178,16 @@ contains
     end if
     nf = 1
     if (s%contact) nf = maxval(s%body)
-    if (allocated(s%field)) deallocate (s%field, s%field_rigid)
-    allocate (s%field(s%p%n), s%field_rigid(nf))
+    if (allocated(s%field)) deallocate (s%field, s%field_rigid, s%field_solid)
+    allocate (s%field(s%p%n), s%field_rigid(nf), s%field_solid(nf))
     s%field = 1
     if (s%contact) s%field = s%body
     s%field_rigid = .false.
+    s%field_solid = .false.
     if (s%contact) then
       do b = 1, nf
         s%field_rigid(b) = all(pack(s%rigid(s%p%mat), s%body == b)) .and. any(s%body == b)
+        s%field_solid(b) = .not. any(pack(s%fluid(s%p%mat), s%body == b))
       end do
     end if
     call grid_fields(s%g, nf, s%any_rigid, st)
@@ -456,18 +459,36 @@ contains
         !$omp end parallel do
       end do
       if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
-      do f = 1, g%nf
-        call grid_apply_walls(g, g%px(:, f), g%py(:, f))
-        call grid_apply_walls(g, g%vx(:, f), g%vy(:, f))
-      end do
-      if (g%nf > 1) then
+      if (g%nf == 1) then
+        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
+        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+      else
+        ! With contact, walls meet solid bodies under the bodies' volume constraint (a stiff
+        ! body lands on the floor, not a cell above it: see grid_apply_walls); fluids are
+        ! held wherever they reach a wall node, as in a single-continuum run.
+        do f = 1, g%nf
+          call walls_of_field(s, f, g%px(:, f), g%py(:, f))
+          call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
+        end do
         call contact_correct(g, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(13))
         do f = 1, g%nf
-          call grid_apply_walls(g, g%vx(:, f), g%vy(:, f))
+          call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
         end do
       end if
     end associate
   end subroutine grid_update
+
+  subroutine walls_of_field(s, f, vx, vy)
+    !! Wall conditions on field f of a contact run (volume constraint for solid fields).
+    type(sim_t), intent(in) :: s
+    integer(ik), intent(in) :: f
+    real(wp), intent(inout) :: vx(:), vy(:)
+    if (s%field_solid(f)) then
+      call grid_apply_walls(s%g, vx, vy, s%g%gv(:, f), s%fullness*s%g%h**2)
+    else
+      call grid_apply_walls(s%g, vx, vy)
+    end if
+  end subroutine walls_of_field
 
   subroutine momentum_to_velocity(g, mtol, qx, qy)
     !! In place: nodal momentum (qx, qy) of every field -> velocity q/m; nodes lighter than
