@@ -10,7 +10,7 @@ module cpdi_api
                          CPDI_ERR_LAPACK
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
-  use cpdi_shape, only: shape_compute, SHAPE_MPM, SHAPE_CPDI
+  use cpdi_shape, only: shape_compute, shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domain
   use cpdi_projection, only: projection_alloc, project_scalar
@@ -530,7 +530,7 @@ contains
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
-    integer(ik) :: bad, fail, m, ip
+    integer(ik) :: bad, fail, a, ip
     character(len=200) :: buf
     idx = 1
     w = 0.0_wp
@@ -541,17 +541,15 @@ contains
     if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
     if (st%ok() .and. ns < s%sh%ns) call st%set(CPDI_ERR_INPUT, 'ns is smaller than the slots of this shape')
     if (st%ok()) then
-      call shape_compute(s%g, s%p, s%sh, bad, fail)
-      if (bad /= 0) then
+      call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+      if (st%ok() .and. bad /= 0) then
         write (buf, '(a,i0,a)') 'particle ', bad, ' support is outside the grid or its domain is inverted'
         call st%set(CPDI_ERR_INPUT, trim(buf))
-      else
+      else if (st%ok()) then
         do ip = 1, n
-          m = s%sh%cnt(ip)
-          idx(1:m, ip) = s%sh%idx(1:m, ip)
-          w(1:m, ip) = s%sh%w(1:m, ip)
-          gx(1:m, ip) = s%sh%gx(1:m, ip)
-          gy(1:m, ip) = s%sh%gy(1:m, ip)
+          do a = 1, shape_count(s%sh, ip)
+            call shape_slot(s%sh, ip, a, idx(a, ip), w(a, ip), gx(a, ip), gy(a, ip))
+          end do
         end do
       end if
     end if

@@ -1,16 +1,25 @@
 !> Particle-to-grid interpolation weights: linear MPM, uGIMP and CPDI1.
 module cpdi_shape
-  !! For every particle p this fills `ns` slots (node index, weight S_ip, gradient
-  !! grad S_ip); `cnt(p)` of them are in use. For CPDI the 16 corner-node pairs are
-  !! merged into the 3x3 node block when the four corners lie in a 2x2-cell block (the
-  !! usual case), so most CPDI particles use 9 slots; a domain spanning more cells keeps
-  !! 16 slots, in which a node may appear twice (scatters and gathers add them: exact).
+  !! For every particle p this fills up to `ns` slots (node index, weight S_ip, gradient
+  !! grad S_ip). For CPDI the 16 corner-node pairs are merged into the 3x3 node block when
+  !! the four corners lie in a 2x2-cell block (the usual case), so most CPDI particles use 9
+  !! slots; a domain spanning more cells keeps 16 slots, in which a node may appear twice
+  !! (scatters and gathers add them: exact).
+  !!
+  !! Storage: every particle has `nm` main slots (`idx`, `w`, `gx`, `gy`, `(nm, n)`); the
+  !! slots nm+1..ns of the few particles that need them (CPDI: slots 10..16) live in an
+  !! overflow pool (`pidx`, `pw`, `pgx`, `pgy`, `(ns - nm, capacity)`), column `ovf(p)`
+  !! (0: none). A particle's slots are main 1..nm, then pool 1..ns-nm, and every consumer
+  !! visits them in that order (the summation order of one 16-slot array). This keeps the
+  !! interpolation at 260 B per CPDI particle instead of 456 B. The pool is filled per
+  !! fixed particle block (count, prefix sum, fill: its columns follow particle order at any
+  !! thread count) and grows geometrically, only when its capacity is exceeded.
   !!
   !! * MPM: bilinear N_i(x_p), 4 slots.
   !! * uGIMP: tensor product of the 1D GIMP function with the initial half-widths
   !!   (Bardenhagen & Kober 2004), 9 slots; needs half-widths <= h/2.
   !! * CPDI1: parallelogram domain spanned by r1, r2 (Sadeghirad et al. 2011),
-  !!   S_ip = 1/4 sum_c N_i(x_c), 16 slots (FORMULAS 4.1).
+  !!   S_ip = 1/4 sum_c N_i(x_c), 16 slots (FORMULAS 4.1), 9 of them main.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC
   use cpdi_grid, only: grid_t
@@ -28,22 +37,26 @@ module cpdi_shape
   integer(ik), parameter, public :: SHAPE_FAIL_INVERTED = 2  !! CPDI domain with r1 x r2 <= 0
 
   type, public :: shape_t
-    !! Connectivity and weights of all particles, `(ns, n)` each.
+    !! Connectivity and weights of all particles: `nm` main slots each, `(nm, n)`, and the
+    !! overflow pool of slots nm+1..ns, `(ns - nm, capacity)`.
     integer(ik) :: kind = SHAPE_MPM
-    integer(ik) :: ns = 4
+    integer(ik) :: ns = 4                  !! most slots of one particle
+    integer(ik) :: nm = 4                  !! main slots of every particle
     integer(ik), allocatable :: idx(:, :)
-    integer(ik), allocatable :: cnt(:)     !! slots in use per particle
+    integer(ik), allocatable :: ovf(:)     !! pool column of slots nm+1..ns per particle (0: none)
     integer(ik), allocatable :: row(:)     !! lowest node row of each stencil (0-based)
     integer(ik) :: span = 1                !! tallest stencil: last minus first node row
     real(wp), allocatable :: w(:, :), gx(:, :), gy(:, :)
+    integer(ik), allocatable :: pidx(:, :)            !! overflow pool: node indices
+    real(wp), allocatable :: pw(:, :), pgx(:, :), pgy(:, :)  !! overflow pool: weights, gradients
   end type shape_t
 
-  public :: shape_slots, shape_alloc, shape_compute, gimp_1d
+  public :: shape_slots, shape_alloc, shape_compute, shape_count, shape_slot, gimp_1d
 
 contains
 
   pure integer(ik) function shape_slots(kind)
-    !! Number of slots per particle for an interpolation kind.
+    !! Most slots of one particle for an interpolation kind.
     integer(ik), intent(in) :: kind
     select case (kind)
     case (SHAPE_GIMP)
@@ -55,23 +68,85 @@ contains
     end select
   end function shape_slots
 
+  pure integer(ik) function main_slots(kind)
+    !! Slots stored for every particle (the rest go to the overflow pool).
+    integer(ik), intent(in) :: kind
+    main_slots = min(shape_slots(kind), 9_ik)
+  end function main_slots
+
   subroutine shape_alloc(sh, kind, n, st)
-    !! Allocate slot storage for n particles.
+    !! Allocate slot storage for n particles (an empty overflow pool).
     type(shape_t), intent(inout) :: sh
     integer(ik), intent(in) :: kind, n
     type(status_t), intent(inout) :: st
     integer :: ierr
     sh%kind = kind
     sh%ns = shape_slots(kind)
-    if (allocated(sh%idx)) deallocate (sh%idx, sh%cnt, sh%row, sh%w, sh%gx, sh%gy)
-    allocate (sh%idx(sh%ns, n), sh%cnt(n), sh%row(n), sh%w(sh%ns, n), sh%gx(sh%ns, n), sh%gy(sh%ns, n), &
+    sh%nm = main_slots(kind)
+    if (allocated(sh%idx)) deallocate (sh%idx, sh%ovf, sh%row, sh%w, sh%gx, sh%gy)
+    allocate (sh%idx(sh%nm, n), sh%ovf(n), sh%row(n), sh%w(sh%nm, n), sh%gx(sh%nm, n), sh%gy(sh%nm, n), &
               stat=ierr)
     if (ierr == 0) then
-      sh%cnt = sh%ns
+      sh%ovf = 0
       sh%row = 0
+      call pool_reserve(sh, 0_ik, ierr)
     end if
     if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate interpolation storage; use fewer particles')
   end subroutine shape_alloc
+
+  subroutine pool_reserve(sh, need, ierr)
+    !! Make room for `need` overflow columns: kept if it fits, else reallocated (contents
+    !! dropped, shape_compute refills them) to max(need, twice the old capacity).
+    type(shape_t), intent(inout) :: sh
+    integer(ik), intent(in) :: need
+    integer, intent(out) :: ierr
+    integer(ik) :: cap
+    ierr = 0
+    cap = 0
+    if (allocated(sh%pidx)) then
+      cap = size(sh%pidx, 2, kind=ik)
+      if (need <= cap) return
+      deallocate (sh%pidx, sh%pw, sh%pgx, sh%pgy)
+    end if
+    if (need > 0) cap = min(max(need, 2*cap, 64_ik), max(need, size(sh%ovf, kind=ik)))
+    allocate (sh%pidx(sh%ns - sh%nm, cap), sh%pw(sh%ns - sh%nm, cap), sh%pgx(sh%ns - sh%nm, cap), &
+              sh%pgy(sh%ns - sh%nm, cap), stat=ierr)
+    if (ierr /= 0) then   ! leave an empty pool behind, never an unallocated one
+      if (allocated(sh%pidx)) deallocate (sh%pidx)
+      if (allocated(sh%pw)) deallocate (sh%pw)
+      if (allocated(sh%pgx)) deallocate (sh%pgx)
+      if (allocated(sh%pgy)) deallocate (sh%pgy)
+      allocate (sh%pidx(sh%ns - sh%nm, 0), sh%pw(sh%ns - sh%nm, 0), sh%pgx(sh%ns - sh%nm, 0), &
+                sh%pgy(sh%ns - sh%nm, 0))
+    end if
+  end subroutine pool_reserve
+
+  pure integer(ik) function shape_count(sh, ip)
+    !! Slots in use by particle ip.
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip
+    shape_count = sh%nm
+    if (sh%ovf(ip) /= 0) shape_count = sh%ns
+  end function shape_count
+
+  pure subroutine shape_slot(sh, ip, a, k, w, gx, gy)
+    !! Slot a (1..shape_count) of particle ip: main slot a, or pool slot a - nm.
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip, a
+    integer(ik), intent(out) :: k
+    real(wp), intent(out) :: w, gx, gy
+    if (a <= sh%nm) then
+      k = sh%idx(a, ip)
+      w = sh%w(a, ip)
+      gx = sh%gx(a, ip)
+      gy = sh%gy(a, ip)
+    else
+      k = sh%pidx(a - sh%nm, sh%ovf(ip))
+      w = sh%pw(a - sh%nm, sh%ovf(ip))
+      gx = sh%pgx(a - sh%nm, sh%ovf(ip))
+      gy = sh%pgy(a - sh%nm, sh%ovf(ip))
+    end if
+  end subroutine shape_slot
 
   pure subroutine gimp_1d(d, lp, h, s, ds)
     !! 1D uGIMP function and derivative for particle-node distance d = x_p - x_i,
@@ -191,17 +266,18 @@ contains
     end do
   end subroutine shape_gimp_one
 
-  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, cnt, c0, span, fail)
-    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y]; c0 and
-    !! span are the first node row of the stencil and its height minus one.
+  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, ko, wo, gxo, gyo, cnt, c0, span, fail)
+    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y]: slots
+    !! 1..9 in k, w, gx, gy, slots 10..16 (if cnt = 16) in ko, wo, gxo, gyo; c0 and span are
+    !! the first node row of the stencil and its height minus one.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2), r(4)
-    integer(ik), intent(out) :: k(16)
-    real(wp), intent(out) :: w(16), gx(16), gy(16)
+    integer(ik), intent(out) :: k(9), ko(7)
+    real(wp), intent(out) :: w(9), gx(9), gy(9), wo(7), gxo(7), gyo(7)
     integer(ik), intent(out) :: cnt, c0, span, fail
     real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su(4), sv(4), u, v, t
-    real(wp) :: hx(3), hy(3), gcx, gcy
-    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, base, nn1
+    real(wp) :: hx(3), hy(3), gcx, gcy, w16(16), gx16(16), gy16(16)
+    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, base, nn1, k16(16)
     fail = SHAPE_FAIL_NONE
     cnt = 16
     c0 = 0
@@ -210,6 +286,7 @@ contains
     if (.not. (cross > 0.0_wp)) then
       fail = SHAPE_FAIL_INVERTED
       call clear(k, w, gx, gy)
+      call clear(ko, wo, gxo, gyo)
       return
     end if
     rv = 1.0_wp/(4.0_wp*cross)              ! 1 / V_p
@@ -233,6 +310,7 @@ contains
                  .and. sv(c) < real(g%nn(2) - 1, wp))) then
         fail = SHAPE_FAIL_OUTSIDE
         call clear(k, w, gx, gy)
+        call clear(ko, wo, gxo, gyo)
         return
       end if
       i0(c) = int(su(c), ik)
@@ -284,11 +362,19 @@ contains
         nv = [(1.0_wp - u)*(1.0_wp - v), u*(1.0_wp - v), (1.0_wp - u)*v, u*v]
         s0 = 4*(c - 1)
         base = i0(c) + 1 + j0(c)*nn1
-        k(s0 + 1:s0 + 4) = [base, base + 1, base + nn1, base + nn1 + 1]
-        w(s0 + 1:s0 + 4) = 0.25_wp*nv
-        gx(s0 + 1:s0 + 4) = nv*gc(1, c)
-        gy(s0 + 1:s0 + 4) = nv*gc(2, c)
+        k16(s0 + 1:s0 + 4) = [base, base + 1, base + nn1, base + nn1 + 1]
+        w16(s0 + 1:s0 + 4) = 0.25_wp*nv
+        gx16(s0 + 1:s0 + 4) = nv*gc(1, c)
+        gy16(s0 + 1:s0 + 4) = nv*gc(2, c)
       end do
+      k = k16(1:9)
+      w = w16(1:9)
+      gx = gx16(1:9)
+      gy = gy16(1:9)
+      ko = k16(10:16)
+      wo = w16(10:16)
+      gxo = gx16(10:16)
+      gyo = gy16(10:16)
     end if
   end subroutine shape_cpdi_one
 
@@ -302,27 +388,41 @@ contains
     gy = 0.0_wp
   end subroutine clear
 
-  subroutine shape_compute(g, p, sh, bad, fail)
+  subroutine shape_compute(g, p, sh, bad, fail, st)
     !! Weights of every particle (OpenMP over fixed particle blocks). On failure, `bad` is
     !! the lowest failing particle and `fail` its SHAPE_FAIL_* cause; otherwise bad = 0.
     !! Also sets each stencil's first node row and the tallest span (for the strips).
+    !! CPDI particles that need slots 10..16 are counted per block in the first pass; after
+    !! a prefix sum over the blocks (and growing the pool if it is too small: st reports an
+    !! allocation failure) the second pass recomputes just those particles into their pool
+    !! columns, which follow particle order.
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     type(shape_t), intent(inout) :: sh
     integer(ik), intent(out) :: bad, fail
-    integer(ik) :: ip, f, c, lo, hi, span, sp, cbad(NCHUNK), cfail(NCHUNK)
-    real(wp) :: lp(2)
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip, f, c, lo, hi, span, sp, nc, j, cbad(NCHUNK), cfail(NCHUNK), cnov(NCHUNK), col(NCHUNK)
+    integer(ik) :: ko(7), k9(9), r9
+    real(wp) :: lp(2), wo(7), gxo(7), gyo(7), w9(9), gx9(9), gy9(9)
+    integer :: ierr
     span = 1
     cbad = 0
     cfail = SHAPE_FAIL_NONE
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp) reduction(max:span)
+    cnov = 0
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp, nc, ko, wo, gxo, gyo) &
+    !$omp reduction(max:span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       do ip = lo, hi
         select case (sh%kind)
         case (SHAPE_CPDI)
           call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), &
-                              sh%gy(:, ip), sh%cnt(ip), sh%row(ip), sp, f)
+                              sh%gy(:, ip), ko, wo, gxo, gyo, nc, sh%row(ip), sp, f)
+          sh%ovf(ip) = 0
+          if (nc > sh%nm .and. f == SHAPE_FAIL_NONE) then   ! a pool column, numbered below
+            sh%ovf(ip) = -1
+            cnov(c) = cnov(c) + 1
+          end if
         case (SHAPE_GIMP)
           lp = [abs(p%r0(1, ip)) + abs(p%r0(3, ip)), abs(p%r0(2, ip)) + abs(p%r0(4, ip))]
           call shape_gimp_one(g, p%x(:, ip), lp, sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
@@ -351,5 +451,31 @@ contains
         exit
       end if
     end do
+    if (bad /= 0) sh%ovf = 0   ! no half-numbered pool left behind
+    if (bad /= 0 .or. sum(cnov) == 0) return
+    col(1) = 1
+    do c = 2, NCHUNK
+      col(c) = col(c - 1) + cnov(c - 1)
+    end do
+    call pool_reserve(sh, sum(cnov), ierr)
+    if (ierr /= 0) then
+      sh%ovf = 0
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
+      return
+    end if
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, j, nc, sp, f, k9, w9, gx9, gy9, r9)
+    do c = 1, NCHUNK
+      if (cnov(c) == 0) cycle
+      call chunk_range(c, p%n, lo, hi)
+      j = col(c)
+      do ip = lo, hi
+        if (sh%ovf(ip) == 0) cycle
+        call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), k9, w9, gx9, gy9, sh%pidx(:, j), sh%pw(:, j), &
+                            sh%pgx(:, j), sh%pgy(:, j), nc, r9, sp, f)
+        sh%ovf(ip) = j
+        j = j + 1
+      end do
+    end do
+    !$omp end parallel do
   end subroutine shape_compute
 end module cpdi_shape

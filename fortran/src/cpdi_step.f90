@@ -19,8 +19,8 @@ module cpdi_step
   use cpdi_grid, only: grid_t, grid_apply_walls, grid_fields, WALL_OPEN
   use cpdi_contact, only: contact_correct
   use cpdi_particles, only: particles_t
-  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_CPDI, &
-                        SHAPE_FAIL_INVERTED
+  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_GIMP, &
+                        SHAPE_CPDI, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range
   use cpdi_materials, only: material_t, material_stress, MAT_FLUID, KIN_LOG
   use cpdi_kinematics, only: det2, map_domain
@@ -245,7 +245,8 @@ contains
     proj = s%opt%projection /= PROJ_NONE
 
     call tic(t0)
-    call shape_compute(s%g, s%p, s%sh, bad, fail)
+    call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+    if (.not. st%ok()) return
     if (bad /= 0) then
       if (fail == SHAPE_FAIL_INVERTED) then
         write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
@@ -331,9 +332,10 @@ contains
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, s%sp%nstrip, 2
         if (simple) then
-          call p2g_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%ns, s%sh%cnt, s%sh%idx, &
-                                s%sh%w, s%sh%gx, s%sh%gy, s%p%m, s%p%v, s%p%vol, s%p%sig, s%p%bf, &
-                                s%opt%gravity, s%g%m, s%g%px, s%g%py, s%g%fx, s%g%fy)
+          call p2g_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
+                                s%sh%ovf, s%sh%idx, s%sh%w, s%sh%gx, s%sh%gy, s%sh%pidx, s%sh%pw, s%sh%pgx, &
+                                s%sh%pgy, s%p%m, s%p%v, s%p%vol, s%p%sig, s%p%bf, s%opt%gravity, s%g%m, s%g%px, &
+                                s%g%py, s%g%fx, s%g%fy)
         else
           call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
@@ -342,14 +344,17 @@ contains
     end do
   end subroutine p2g
 
-  subroutine p2g_strip_simple(perm, ns, cnt, idx, w, gx, gy, pm, pv, pvol, psig, pbf, grav, m, px, py, fx, fy)
+  subroutine p2g_strip_simple(perm, nm, np, ovf, idx, w, gx, gy, pidx, pw, pgx, pgy, pm, pv, pvol, psig, pbf, &
+                              grav, m, px, py, fx, fy)
     !! P2G of the particles perm (one strip) for one velocity field without rigid
     !! particles (the common case): plain arrays, so the compiler knows nothing aliases.
-    integer(ik), intent(in) :: perm(:), ns, cnt(:), idx(ns, *)
-    real(wp), intent(in) :: w(ns, *), gx(ns, *), gy(ns, *), pm(*), pv(2, *), pvol(*), psig(4, *), pbf(2, *), grav(2)
+    !! Main slots (nm per particle), then the particle's pool column (np slots), if any.
+    integer(ik), intent(in) :: perm(:), nm, np, ovf(*), idx(nm, *), pidx(np, *)
+    real(wp), intent(in) :: w(nm, *), gx(nm, *), gy(nm, *), pw(np, *), pgx(np, *), pgy(np, *), pm(*), pv(2, *), &
+                            pvol(*), psig(4, *), pbf(2, *), grav(2)
     real(wp), intent(inout) :: m(*), px(*), py(*), fx(*), fy(*)
-    integer(ik) :: i, ip, k, a
-    real(wp) :: mp, mvx, mvy, sxx, syy, sxy, bx, by, wk, gxk, gyk
+    integer(ik) :: i, ip, j
+    real(wp) :: mp, mvx, mvy, sxx, syy, sxy, bx, by
     do i = 1, size(perm)
       ip = perm(i)
       mp = pm(ip)
@@ -360,18 +365,29 @@ contains
       sxy = pvol(ip)*psig(3, ip)
       bx = mp*(grav(1) + pbf(1, ip))
       by = mp*(grav(2) + pbf(2, ip))
-      do a = 1, cnt(ip)
-        k = idx(a, ip)
-        wk = w(a, ip)
-        gxk = gx(a, ip)
-        gyk = gy(a, ip)
+      call p2g_slots(nm, idx(:, ip), w(:, ip), gx(:, ip), gy(:, ip))
+      j = ovf(ip)
+      if (j /= 0) call p2g_slots(np, pidx(:, j), pw(:, j), pgx(:, j), pgy(:, j))
+    end do
+  contains
+    subroutine p2g_slots(ns, idx, w, gx, gy)
+      !! Scatter of ns slots of the current particle.
+      integer(ik), intent(in) :: ns, idx(ns)
+      real(wp), intent(in) :: w(ns), gx(ns), gy(ns)
+      integer(ik) :: a, k
+      real(wp) :: wk, gxk, gyk
+      do a = 1, ns
+        k = idx(a)
+        wk = w(a)
+        gxk = gx(a)
+        gyk = gy(a)
         m(k) = m(k) + wk*mp
         px(k) = px(k) + wk*mvx
         py(k) = py(k) + wk*mvy
         fx(k) = fx(k) - (sxx*gxk + sxy*gyk) + wk*bx
         fy(k) = fy(k) - (sxy*gxk + syy*gyk) + wk*by
       end do
-    end do
+    end subroutine p2g_slots
   end subroutine p2g_strip_simple
 
   subroutine p2g_strip(s, m0, m1)
@@ -397,11 +413,8 @@ contains
         bx = mp*(s%opt%gravity(1) + p%bf(1, ip))
         by = mp*(s%opt%gravity(2) + p%bf(2, ip))
         rig = s%rigid(p%mat(ip))
-        do a = 1, sh%cnt(ip)
-          k = sh%idx(a, ip)
-          wk = sh%w(a, ip)
-          gxk = sh%gx(a, ip)
-          gyk = sh%gy(a, ip)
+        do a = 1, shape_count(sh, ip)
+          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
           wm = wk*mp
           g%m(k, f) = g%m(k, f) + wm
           g%px(k, f) = g%px(k, f) + wk*mvx
@@ -543,11 +556,11 @@ contains
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (simple) then
-        call g2p_block_simple(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%w, s%g%vx, s%g%vy, s%g%px, s%g%py, &
-                              s%p%m, s%p%v, s%p%x, s%p%bf, s%opt%flip, dt, s%opt%gravity, s%g%origin, &
-                              s%g%origin + real(s%g%ncell, wp)*s%g%h, s%g%walls /= WALL_OPEN, s%red(:, c))
-        if (.not. musl) call vgrad_block(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%gx, s%sh%gy, s%g%vx, s%g%vy, &
-                                         s%p%L)
+        call g2p_block_simple(lo, hi, s%sh%nm, s%sh%ns - s%sh%nm, s%sh%ovf, s%sh%idx, s%sh%w, s%sh%pidx, &
+                              s%sh%pw, s%g%vx, s%g%vy, s%g%px, s%g%py, s%p%m, s%p%v, s%p%x, s%p%bf, s%opt%flip, &
+                              dt, s%opt%gravity, s%g%origin, s%g%origin + real(s%g%ncell, wp)*s%g%h, &
+                              s%g%walls /= WALL_OPEN, s%red(:, c))
+        if (.not. musl) call vgrad_block(lo, hi, s%sh, s%g%vx, s%g%vy, s%p%L)
       else
         call g2p_block(s, dt, lo, hi, s%red(:, c))
       end if
@@ -575,7 +588,7 @@ contains
     integer(ik), intent(in) :: lo, hi
     real(wp), intent(out) :: red(6)
     integer(ik) :: ip, k, a, nclamp, f
-    real(wp) :: dvx, dvy, vnx, vny, wk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
+    real(wp) :: dvx, dvy, vnx, vny, wk, gxk, gyk, flip, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp
     logical :: musl, closed(4)
 
     flip = s%opt%flip
@@ -602,9 +615,8 @@ contains
           dvy = 0.0_wp
           vnx = 0.0_wp
           vny = 0.0_wp
-          do a = 1, sh%cnt(ip)
-            k = sh%idx(a, ip)
-            wk = sh%w(a, ip)
+          do a = 1, shape_count(sh, ip)
+            call shape_slot(sh, ip, a, k, wk, gxk, gyk)
             vnx = vnx + wk*g%vx(k, f)
             vny = vny + wk*g%vy(k, f)
             dvx = dvx + wk*(g%vx(k, f) - g%px(k, f))
@@ -626,18 +638,19 @@ contains
     red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
   end subroutine g2p_block
 
-  subroutine g2p_block_simple(lo, hi, ns, cnt, idx, w, vx, vy, vnx0, vny0, pm, pv, px, pbf, flip, dt, grav, &
-                              xmin, xmax, closed, red)
+  subroutine g2p_block_simple(lo, hi, nm, np, ovf, idx, w, pidx, pw, vx, vy, vnx0, vny0, pm, pv, px, pbf, flip, &
+                              dt, grav, xmin, xmax, closed, red)
     !! g2p_block for one velocity field without rigid particles (the common case), on plain
-    !! arrays; the same arithmetic in the same order. vnx0, vny0: nodal velocity at t^n.
-    integer(ik), intent(in) :: lo, hi, ns, cnt(:), idx(ns, *)
-    real(wp), intent(in) :: w(ns, *), vx(*), vy(*), vnx0(*), vny0(*), pm(*), pbf(2, *), flip, dt, grav(2), &
-                            xmin(2), xmax(2)
+    !! arrays; the same arithmetic in the same order (main slots, then the pool column).
+    !! vnx0, vny0: nodal velocity at t^n.
+    integer(ik), intent(in) :: lo, hi, nm, np, ovf(*), idx(nm, *), pidx(np, *)
+    real(wp), intent(in) :: w(nm, *), pw(np, *), vx(*), vy(*), vnx0(*), vny0(*), pm(*), pbf(2, *), flip, dt, &
+                            grav(2), xmin(2), xmax(2)
     real(wp), intent(inout) :: pv(2, *), px(2, *)
     logical, intent(in) :: closed(4)
     real(wp), intent(out) :: red(6)
-    integer(ik) :: ip, k, a, nclamp
-    real(wp) :: dvx, dvy, vnx, vny, wk, xo(2), ke, mom(2), wg, wb, mp
+    integer(ik) :: ip, j, nclamp
+    real(wp) :: dvx, dvy, vnx, vny, xo(2), ke, mom(2), wg, wb, mp
     ke = 0.0_wp
     mom = 0.0_wp
     wg = 0.0_wp
@@ -650,14 +663,9 @@ contains
       dvy = 0.0_wp
       vnx = 0.0_wp
       vny = 0.0_wp
-      do a = 1, cnt(ip)
-        k = idx(a, ip)
-        wk = w(a, ip)
-        vnx = vnx + wk*vx(k)
-        vny = vny + wk*vy(k)
-        dvx = dvx + wk*(vx(k) - vnx0(k))
-        dvy = dvy + wk*(vy(k) - vny0(k))
-      end do
+      call g2p_slots(nm, idx(:, ip), w(:, ip))
+      j = ovf(ip)
+      if (j /= 0) call g2p_slots(np, pidx(:, j), pw(:, j))
       pv(1, ip) = flip*(pv(1, ip) + dvx) + (1.0_wp - flip)*vnx
       pv(2, ip) = flip*(pv(2, ip) + dvy) + (1.0_wp - flip)*vny
       px(1, ip) = xo(1) + dt*vnx
@@ -669,6 +677,22 @@ contains
       wb = wb + mp*dot_product(pbf(:, ip), px(:, ip) - xo)
     end do
     red = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp)]
+  contains
+    subroutine g2p_slots(ns, idx, w)
+      !! Gather of ns slots of the current particle.
+      integer(ik), intent(in) :: ns, idx(ns)
+      real(wp), intent(in) :: w(ns)
+      integer(ik) :: a, k
+      real(wp) :: wk
+      do a = 1, ns
+        k = idx(a)
+        wk = w(a)
+        vnx = vnx + wk*vx(k)
+        vny = vny + wk*vy(k)
+        dvx = dvx + wk*(vx(k) - vnx0(k))
+        dvy = dvy + wk*(vy(k) - vny0(k))
+      end do
+    end subroutine g2p_slots
   end subroutine g2p_block_simple
 
   pure subroutine hold_on_walls(x, xmin, xmax, closed, nclamp)
@@ -696,50 +720,80 @@ contains
     end if
   end subroutine hold_on_walls
 
-  subroutine vgrad_block(lo, hi, ns, cnt, idx, gx, gy, vx, vy, l)
-    !! Velocity gradient of particles lo..hi from one nodal velocity field, on plain arrays
-    !! (the same sums as velocity_gradient). Calling this from the general paths instead of
-    !! velocity_gradient was tried: the compiler then contracts the sums into FMAs differently
-    !! and contact runs change in the last bits, so merging the two waits for a gold regeneration.
-    integer(ik), intent(in) :: lo, hi, ns, cnt(:), idx(ns, *)
-    real(wp), intent(in) :: gx(ns, *), gy(ns, *), vx(*), vy(*)
+  subroutine vgrad_block(lo, hi, sh, vx, vy, l)
+    !! Velocity gradient of particles lo..hi from one nodal velocity field (the same sums as
+    !! velocity_gradient), main slots then pool column on plain arrays (vgrad_plain).
+    !! Calling this from the general paths instead of velocity_gradient was tried: the
+    !! compiler then contracts the sums into FMAs differently and contact runs change in the
+    !! last bits, so merging the two waits for a gold regeneration.
+    integer(ik), intent(in) :: lo, hi
+    type(shape_t), intent(in) :: sh
+    real(wp), intent(in) :: vx(*), vy(*)
     real(wp), intent(inout) :: l(4, *)
-    integer(ik) :: ip, a, k
+    call vgrad_plain(lo, hi, sh%nm, sh%ns - sh%nm, sh%ovf, sh%idx, sh%gx, sh%gy, sh%pidx, sh%pgx, sh%pgy, vx, vy, l)
+  end subroutine vgrad_block
+
+  subroutine vgrad_plain(lo, hi, nm, np, ovf, idx, gx, gy, pidx, pgx, pgy, vx, vy, l)
+    !! vgrad_block on plain arrays: nm main slots per particle, np in its pool column.
+    integer(ik), intent(in) :: lo, hi, nm, np, ovf(*), idx(nm, *), pidx(np, *)
+    real(wp), intent(in) :: gx(nm, *), gy(nm, *), pgx(np, *), pgy(np, *), vx(*), vy(*)
+    real(wp), intent(inout) :: l(4, *)
+    integer(ik) :: ip, j, a, k
     real(wp) :: l1, l2, l3, l4
     do ip = lo, hi
       l1 = 0.0_wp
       l2 = 0.0_wp
       l3 = 0.0_wp
       l4 = 0.0_wp
-      do a = 1, cnt(ip)
+      do a = 1, nm
         k = idx(a, ip)
         l1 = l1 + vx(k)*gx(a, ip)
         l2 = l2 + vy(k)*gx(a, ip)
         l3 = l3 + vx(k)*gy(a, ip)
         l4 = l4 + vy(k)*gy(a, ip)
       end do
+      j = ovf(ip)
+      if (j /= 0) then
+        do a = 1, np
+          k = pidx(a, j)
+          l1 = l1 + vx(k)*pgx(a, j)
+          l2 = l2 + vy(k)*pgx(a, j)
+          l3 = l3 + vx(k)*pgy(a, j)
+          l4 = l4 + vy(k)*pgy(a, j)
+        end do
+      end if
       l(:, ip) = [l1, l2, l3, l4]
     end do
-  end subroutine vgrad_block
+  end subroutine vgrad_plain
 
-  subroutine remap_strip_simple(perm, ns, cnt, idx, w, pm, pv, qx, qy)
-    !! MUSL momentum scatter of the particles perm (one strip) to one field, plain arrays.
-    integer(ik), intent(in) :: perm(:), ns, cnt(:), idx(ns, *)
-    real(wp), intent(in) :: w(ns, *), pm(*), pv(2, *)
+  subroutine remap_strip_simple(perm, nm, np, ovf, idx, w, pidx, pw, pm, pv, qx, qy)
+    !! MUSL momentum scatter of the particles perm (one strip) to one field, plain arrays
+    !! (main slots, then the pool column).
+    integer(ik), intent(in) :: perm(:), nm, np, ovf(*), idx(nm, *), pidx(np, *)
+    real(wp), intent(in) :: w(nm, *), pw(np, *), pm(*), pv(2, *)
     real(wp), intent(inout) :: qx(*), qy(*)
-    integer(ik) :: i, ip, k, a
-    real(wp) :: mvx, mvy, wk
+    integer(ik) :: i, ip, j
+    real(wp) :: mvx, mvy
     do i = 1, size(perm)
       ip = perm(i)
       mvx = pm(ip)*pv(1, ip)
       mvy = pm(ip)*pv(2, ip)
-      do a = 1, cnt(ip)
-        k = idx(a, ip)
-        wk = w(a, ip)
-        qx(k) = qx(k) + wk*mvx
-        qy(k) = qy(k) + wk*mvy
-      end do
+      call remap_slots(nm, idx(:, ip), w(:, ip))
+      j = ovf(ip)
+      if (j /= 0) call remap_slots(np, pidx(:, j), pw(:, j))
     end do
+  contains
+    subroutine remap_slots(ns, idx, w)
+      !! Scatter of ns slots of the current particle.
+      integer(ik), intent(in) :: ns, idx(ns)
+      real(wp), intent(in) :: w(ns)
+      integer(ik) :: a, k
+      do a = 1, ns
+        k = idx(a)
+        qx(k) = qx(k) + w(a)*mvx
+        qy(k) = qy(k) + w(a)*mvy
+      end do
+    end subroutine remap_slots
   end subroutine remap_strip_simple
 
   pure function velocity_gradient(sh, vx, vy, ip) result(l)
@@ -749,13 +803,14 @@ contains
     integer(ik), intent(in) :: ip
     real(wp) :: l(4)
     integer(ik) :: a, k
+    real(wp) :: wk, gxk, gyk
     l = 0.0_wp
-    do a = 1, sh%cnt(ip)
-      k = sh%idx(a, ip)
-      l(1) = l(1) + vx(k)*sh%gx(a, ip)
-      l(2) = l(2) + vy(k)*sh%gx(a, ip)
-      l(3) = l(3) + vx(k)*sh%gy(a, ip)
-      l(4) = l(4) + vy(k)*sh%gy(a, ip)
+    do a = 1, shape_count(sh, ip)
+      call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+      l(1) = l(1) + vx(k)*gxk
+      l(2) = l(2) + vy(k)*gxk
+      l(3) = l(3) + vx(k)*gyk
+      l(4) = l(4) + vy(k)*gyk
     end do
   end function velocity_gradient
 
@@ -775,8 +830,8 @@ contains
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, s%sp%nstrip, 2
         if (s%g%nf == 1) then
-          call remap_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%ns, s%sh%cnt, s%sh%idx, &
-                                  s%sh%w, s%p%m, s%p%v, s%g%vx, s%g%vy)
+          call remap_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
+                                  s%sh%ovf, s%sh%idx, s%sh%w, s%sh%pidx, s%sh%pw, s%p%m, s%p%v, s%g%vx, s%g%vy)
         else
           call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
@@ -792,7 +847,7 @@ contains
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (s%g%nf == 1 .and. .not. s%any_rigid) then
-        call vgrad_block(lo, hi, s%sh%ns, s%sh%cnt, s%sh%idx, s%sh%gx, s%sh%gy, s%g%vx, s%g%vy, s%p%L)
+        call vgrad_block(lo, hi, s%sh, s%g%vx, s%g%vy, s%p%L)
         cycle
       end if
       do ip = lo, hi
@@ -809,16 +864,15 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik), intent(in) :: m0, m1
     integer(ik) :: m, ip, k, a, f
-    real(wp) :: mvx, mvy, wk
+    real(wp) :: mvx, mvy, wk, gxk, gyk
     associate (g => s%g, p => s%p, sh => s%sh)
       do m = m0, m1
         ip = s%sp%perm(m)
         f = s%field(ip)
         mvx = p%m(ip)*p%v(1, ip)
         mvy = p%m(ip)*p%v(2, ip)
-        do a = 1, sh%cnt(ip)
-          k = sh%idx(a, ip)
-          wk = sh%w(a, ip)
+        do a = 1, shape_count(sh, ip)
+          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
           g%vx(k, f) = g%vx(k, f) + wk*mvx
           g%vy(k, f) = g%vy(k, f) + wk*mvy
         end do
