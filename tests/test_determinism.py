@@ -33,12 +33,24 @@ def _with_block() -> dict:
     return d
 
 
+def _stretched() -> dict:
+    """A soft block (one particle per cell) thrown at the floor: its CPDI domains stretch over
+    more than a 2x2-cell block, so their slots 10..16 live in the overflow pool."""
+    d = _dam_break("cpdi", "none")
+    d["materials"] = [{"name": "block", "model": "hencky", "density": 1000.0, "youngs_modulus": 5e4,
+                       "poisson_ratio": 0.3}]
+    d["bodies"] = [{"material": "block", "ppc": 1, "velocity": [0.5, -2.0],
+                    "geometry": {"type": "rectangle", "min": [0.1, 0.05], "max": [0.3, 0.25]}}]
+    return d
+
+
 CASES = {
     "cpdi-cell": _dam_break("cpdi", "cell"),
     "cpdi-nodal": _dam_break("cpdi", "nodal"),
     "gimp-cell": _dam_break("gimp", "cell"),
     "mpm-none": _dam_break("mpm", "none"),
     "cpdi-contact": _with_block(),
+    "cpdi-pool": _stretched(),
 }
 
 
@@ -49,14 +61,22 @@ def restore_threads():
     solver.threads(before)
 
 
-def _run(d: dict, threads: int, steps: int):
+def _run(d: dict, threads: int, steps: int, pool: bool = False):
     assert solver.threads(threads) == threads
     sim, _ = runner.build(cases.from_dict(copy.deepcopy(d)))
     try:
         sim.advance(10.0, max_steps=steps)
+        if pool:  # the particles using more than 9 slots (CPDI's overflow pool)
+            w = sim.shape_functions()[1]
+            return int(np.count_nonzero((w[:, 9:] != 0.0).any(axis=1)))
         return sim.state(), sim.diagnostics()
     finally:
         sim.close()
+
+
+def test_stretched_case_uses_the_overflow_pool(restore_threads):
+    """Without pool particles the cpdi-pool comparison would not exercise the pool."""
+    assert _run(CASES["cpdi-pool"], 1, 120, pool=True) > 0
 
 
 @pytest.mark.parametrize("name", list(CASES))
