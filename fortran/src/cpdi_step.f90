@@ -472,17 +472,11 @@ contains
         !$omp end parallel do
       end do
       if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
-      if (g%nf == 1) then
-        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
-        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
-      else
-        ! With contact, walls meet solid bodies under the bodies' volume constraint (a stiff
-        ! body lands on the floor, not a cell above it: see grid_apply_walls); fluids are
-        ! held wherever they reach a wall node, as in a single-continuum run.
-        do f = 1, g%nf
-          call walls_of_field(s, f, g%px(:, f), g%py(:, f))
-          call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
-        end do
+      do f = 1, g%nf
+        call walls_of_field(s, f, g%px(:, f), g%py(:, f))
+        call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
+      end do
+      if (g%nf > 1) then
         call contact_correct(g, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(13))
         do f = 1, g%nf
           call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
@@ -492,7 +486,10 @@ contains
   end subroutine grid_update
 
   subroutine walls_of_field(s, f, vx, vy)
-    !! Wall conditions on field f of a contact run (volume constraint for solid fields).
+    !! Wall conditions on field f. With contact, walls meet solid bodies under the bodies'
+    !! volume constraint (a stiff body lands on the floor, not a cell above it: see
+    !! grid_apply_walls); fluids, and every run without contact, are held wherever they
+    !! reach a wall node.
     type(sim_t), intent(in) :: s
     integer(ik), intent(in) :: f
     real(wp), intent(inout) :: vx(:), vy(:)
@@ -702,30 +699,25 @@ contains
     real(wp), intent(in) :: xmin(2), xmax(2)
     logical, intent(in) :: closed(4)
     integer(ik), intent(inout) :: nclamp
-    if (closed(1) .and. x(1) < xmin(1)) then
-      x(1) = xmin(1)
-      nclamp = nclamp + 1
-    end if
-    if (closed(2) .and. x(1) > xmax(1)) then
-      x(1) = xmax(1)
-      nclamp = nclamp + 1
-    end if
-    if (closed(3) .and. x(2) < xmin(2)) then
-      x(2) = xmin(2)
-      nclamp = nclamp + 1
-    end if
-    if (closed(4) .and. x(2) > xmax(2)) then
-      x(2) = xmax(2)
-      nclamp = nclamp + 1
-    end if
+    integer :: a
+    do a = 1, 2   ! closed = (left, right, bottom, top)
+      if (closed(2*a - 1) .and. x(a) < xmin(a)) then
+        x(a) = xmin(a)
+        nclamp = nclamp + 1
+      end if
+      if (closed(2*a) .and. x(a) > xmax(a)) then
+        x(a) = xmax(a)
+        nclamp = nclamp + 1
+      end if
+    end do
   end subroutine hold_on_walls
 
   subroutine vgrad_block(lo, hi, sh, vx, vy, l)
     !! Velocity gradient of particles lo..hi from one nodal velocity field (the same sums as
     !! velocity_gradient), main slots then pool column on plain arrays (vgrad_plain).
-    !! Calling this from the general paths instead of velocity_gradient was tried: the
-    !! compiler then contracts the sums into FMAs differently and contact runs change in the
-    !! last bits, so merging the two waits for a gold regeneration.
+    !! The general paths keep velocity_gradient: calling this from them changes contact runs
+    !! in the last bits (the compiler vectorises these sums without FMA contraction), so
+    !! merging the two needs its own gold regeneration.
     integer(ik), intent(in) :: lo, hi
     type(shape_t), intent(in) :: sh
     real(wp), intent(in) :: vx(*), vy(*)
