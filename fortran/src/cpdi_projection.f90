@@ -29,7 +29,7 @@ module cpdi_projection
   !! two-colour strips (cpdi_schedule), bitwise the same at any thread count; the nodal
   !! assembly and solve are serial.
   use cpdi_kinds, only: wp, ik
-  use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_LAPACK
+  use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_LAPACK, CPDI_ERR_STATE
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP
@@ -61,7 +61,9 @@ module cpdi_projection
     integer(ik) :: na = 0                !! active nodes (nodal)
     integer(ik) :: kd = 1                !! half band width (nodal)
     real(wp) :: shift = 0.0_wp           !! diagonal shift of the factorisation (nodal)
-    type(strips_t) :: sp                 !! scatter colouring of the cell assembly
+    type(strips_t) :: sp                 !! own scatter colouring of the cell assembly
+    logical :: own = .true.              !! cell scatters use sp (no colouring was given)
+    logical :: massed = .false.          !! hd holds the cell masses of this operator
   end type projection_t
 
   public :: projection_alloc, projection_setup, projection_apply, project_scalar, quadrature
@@ -136,24 +138,29 @@ contains
     wq = 0.25_wp
   end subroutine quadrature
 
-  subroutine projection_setup(pr, mode, shape, g, p, mask, st)
+  subroutine projection_setup(pr, mode, shape, g, p, mask, st, sp)
     !! Build the operator of the current configuration for mode PROJ_CELL or PROJ_NODAL.
+    !! sp: a two-colour scatter colouring of the particles whose stencils hold every cell
+    !! their quadrature points fall in (the shape functions' strips of this configuration);
+    !! the cell operator then scatters by it instead of building its own.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: mode, shape
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
     type(status_t), intent(inout) :: st
+    type(strips_t), intent(in), optional :: sp
     pr%mode = mode
     if (mode == PROJ_CELL) then
-      call setup_cell(pr, shape, g, p, mask)
+      call setup_cell(pr, shape, g, p, .not. present(sp))
     else if (mode == PROJ_NODAL) then
       call setup_nodal(pr, shape, g, p, mask, st)
     end if
   end subroutine projection_setup
 
-  subroutine projection_apply(pr, shape, g, p, mask, val, st)
-    !! Replace val(p) of the particles in mask by its projection with the current operator.
+  subroutine projection_apply(pr, shape, g, p, mask, val, st, sp)
+    !! Replace val(p) of the particles in mask by its projection with the current operator;
+    !! sp: the colouring given to projection_setup, if one was.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: shape
     type(grid_t), intent(in) :: g
@@ -161,8 +168,15 @@ contains
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: val(:)
     type(status_t), intent(inout) :: st
+    type(strips_t), intent(in), optional :: sp
     if (pr%mode == PROJ_CELL) then
-      call apply_cell(pr, p, mask, val)
+      if (pr%own) then
+        call apply_cell(pr, pr%sp, p, mask, val)
+      else if (present(sp)) then
+        call apply_cell(pr, sp, p, mask, val)
+      else
+        call st%set(CPDI_ERR_STATE, 'projection_apply: the operator was set up with a colouring; pass it')
+      end if
     else if (pr%mode == PROJ_NODAL) then
       call apply_nodal(pr, shape, g, p, mask, val, st)
     end if
@@ -181,13 +195,15 @@ contains
     if (st%ok()) call projection_apply(pr, shape, g, p, mask, val, st)
   end subroutine project_scalar
 
-  subroutine setup_cell(pr, shape, g, p, mask)
-    !! Cell of every quadrature point, the strips of the scatter, and the cell masses.
+  subroutine setup_cell(pr, shape, g, p, own)
+    !! Cell of every quadrature point and, when the operator has no scatter colouring
+    !! given (own), its own strips. The cell masses are summed by the first apply, in the
+    !! same pass as its field.
     type(projection_t), intent(inout) :: pr
     integer(ik), intent(in) :: shape
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
-    logical, intent(in) :: mask(:)
+    logical, intent(in) :: own
     integer(ik) :: c, lo, hi, span
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
     span = 1
@@ -197,13 +213,9 @@ contains
       call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, span)
     end do
     !$omp end parallel do
-    call strips_build(pr%sp, pr%row, span)
-    call scatter_cell(pr, p, mask, pr%hd)
-    !$omp parallel do schedule(static) default(shared) private(c)
-    do c = 1, size(pr%hd)
-      if (pr%hd(c) > 0.0_wp) pr%hd(c) = 1.0_wp/pr%hd(c)   ! stored as 1 / mass
-    end do
-    !$omp end parallel do
+    if (own) call strips_build(pr%sp, pr%row, span)
+    pr%own = own
+    pr%massed = .false.
   end subroutine setup_cell
 
   subroutine locate_block(lo, hi, shape, x, r, r0, gorig, rh, nn, qc, row, span)
@@ -230,60 +242,94 @@ contains
     end do
   end subroutine locate_block
 
-  subroutine scatter_cell(pr, p, mask, acc, val)
-    !! acc(c) = sum over quadrature points in cell c of w_q m_p (val_p if present), by
-    !! two-colour strips: bitwise the same at any thread count.
+  subroutine scatter_cell(pr, sp, p, mask, val, acc, mass)
+    !! acc(c) = sum over quadrature points in cell c of w_q m_p val_p (and, if present,
+    !! mass(c) = sum of w_q m_p), by the two-colour strips sp: bitwise the same at any
+    !! thread count.
     type(projection_t), intent(in) :: pr
+    type(strips_t), intent(in) :: sp
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
+    real(wp), intent(in) :: val(:)
     real(wp), intent(inout) :: acc(:)
-    real(wp), intent(in), optional :: val(:)
-    integer(ik) :: colour, b
+    real(wp), intent(inout), optional :: mass(:)
+    integer(ik) :: colour, b, c
     real(wp) :: wq
     wq = 1.0_wp/real(pr%nq, wp)
     acc = 0.0_wp
+    if (present(mass)) mass = 0.0_wp
     do colour = 1, 2
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
-      do b = colour, pr%sp%nstrip, 2
-        if (present(val)) then
-          call scatter_strip(pr%sp%perm(pr%sp%start(b):pr%sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, &
-                             acc, val)
+      do b = colour, sp%nstrip, 2
+        if (present(mass)) then
+          call scatter_strip_mass(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, &
+                                  acc, mass)
         else
-          call scatter_strip(pr%sp%perm(pr%sp%start(b):pr%sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, acc)
+          call scatter_strip(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, acc)
         end if
       end do
       !$omp end parallel do
     end do
+    if (.not. present(mass)) return
+    !$omp parallel do schedule(static) default(shared) private(c)
+    do c = 1, size(mass)
+      if (mass(c) > 0.0_wp) mass(c) = 1.0_wp/mass(c)   ! stored as 1 / mass
+    end do
+    !$omp end parallel do
   end subroutine scatter_cell
 
-  subroutine scatter_strip(perm, nq, qc, pm, mask, wq, acc, val)
+  subroutine scatter_strip(perm, nq, qc, pm, mask, wq, val, acc)
     !! One strip of scatter_cell, on plain arrays.
     integer(ik), intent(in) :: perm(:), nq, qc(4, *)
-    real(wp), intent(in) :: pm(*), wq
+    real(wp), intent(in) :: pm(*), wq, val(:)
     logical, intent(in) :: mask(*)
     real(wp), intent(inout) :: acc(*)
-    real(wp), intent(in), optional :: val(:)
     integer(ik) :: i, ip, q
     real(wp) :: mw
     do i = 1, size(perm)
       ip = perm(i)
       if (.not. mask(ip)) cycle
-      mw = pm(ip)*wq
-      if (present(val)) mw = mw*val(ip)
+      mw = pm(ip)*wq*val(ip)
       do q = 1, nq
         acc(qc(q, ip)) = acc(qc(q, ip)) + mw
       end do
     end do
   end subroutine scatter_strip
 
-  subroutine apply_cell(pr, p, mask, val)
-    !! Mass-weighted cell averages of val, gathered back to the quadrature points.
+  subroutine scatter_strip_mass(perm, nq, qc, pm, mask, wq, val, acc, mass)
+    !! scatter_strip that also sums the cell masses.
+    integer(ik), intent(in) :: perm(:), nq, qc(4, *)
+    real(wp), intent(in) :: pm(*), wq, val(:)
+    logical, intent(in) :: mask(*)
+    real(wp), intent(inout) :: acc(*), mass(*)
+    integer(ik) :: i, ip, q
+    real(wp) :: mw
+    do i = 1, size(perm)
+      ip = perm(i)
+      if (.not. mask(ip)) cycle
+      mw = pm(ip)*wq
+      do q = 1, nq
+        mass(qc(q, ip)) = mass(qc(q, ip)) + mw
+        acc(qc(q, ip)) = acc(qc(q, ip)) + mw*val(ip)
+      end do
+    end do
+  end subroutine scatter_strip_mass
+
+  subroutine apply_cell(pr, sp, p, mask, val)
+    !! Mass-weighted cell averages of val, gathered back to the quadrature points (the
+    !! first apply of an operator also sums its cell masses).
     type(projection_t), intent(inout) :: pr
+    type(strips_t), intent(in) :: sp
     type(particles_t), intent(in) :: p
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: val(:)
     integer(ik) :: c, lo, hi
-    call scatter_cell(pr, p, mask, pr%rhs, val)
+    if (pr%massed) then
+      call scatter_cell(pr, sp, p, mask, val, pr%rhs)
+    else
+      call scatter_cell(pr, sp, p, mask, val, pr%rhs, pr%hd)
+      pr%massed = .true.
+    end if
     !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)

@@ -263,7 +263,7 @@ contains
     call strips_build(s%sp, s%sh%row, s%sh%span)
     call toc(s, 1, t0)
     if (proj) then   ! the operator of this step's configuration, for both projections
-      call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
+      call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st, s%sp)
       call toc(s, 7, t0)
       if (.not. st%ok()) return
     end if
@@ -278,7 +278,7 @@ contains
     call toc(s, 5, t0)
     if (.not. st%ok()) return
     if (proj) then
-      call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st)
+      call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
       call toc(s, 7, t0)
       if (.not. st%ok()) return
       call projected_deformation(s)
@@ -1103,7 +1103,7 @@ contains
       end do
     end do
     !$omp end parallel do
-    call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st)
+    call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
     if (.not. st%ok()) return
     !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, dm)
     do c = 1, NCHUNK
