@@ -275,9 +275,9 @@ contains
     integer(ik), intent(out) :: k(9), ko(7)
     real(wp), intent(out) :: w(9), gx(9), gy(9), wo(7), gxo(7), gyo(7)
     integer(ik), intent(out) :: cnt, c0, span, fail
-    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su(4), sv(4), u, v, t
-    real(wp) :: hx(3), hy(3), gcx, gcy, w16(16), gx16(16), gy16(16)
-    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, base, nn1, k16(16)
+    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su(4), sv(4), u, v
+    real(wp) :: hx(3, 4), hy(3, 4), p1, p2, p3, p4, w16(16), gx16(16), gy16(16)
+    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, a, base, nn1, k16(16)
     fail = SHAPE_FAIL_NONE
     cnt = 16
     c0 = 0
@@ -322,37 +322,33 @@ contains
     span = max(j0(1), j0(2), j0(3), j0(4)) + 1 - bj
     if (span <= 2 .and. max(i0(1), i0(2), i0(3), i0(4)) - bi <= 1) then
       ! All corners in a 2x2-cell block: merge into the 3x3 node stencil. Corner c's
-      ! bilinear values there are the outer product of the 1D hats X(l) = max(0, 1 - |u - l|),
-      ! u = its local coordinate in [0, 2), and likewise Y: w = 1/4 sum_c X (x) Y,
-      ! grad = sum_c g_c X (x) Y, a fixed 4 x 9 loop with no indexing.
+      ! bilinear values there are the outer product P_c = X_c (x) Y_c of the 1D hats
+      ! X(l) = max(0, 1 - |u - l|), u = its local coordinate in [0, 2), and likewise Y:
+      ! w = (P1 + P2 + P3 + P4)/4 and, as g3 = -g1 and g4 = -g2,
+      ! grad = g1 (P1 - P3) + g2 (P2 - P4): a fixed 9-node loop with no indexing.
       cnt = 9
       base = bi + 1 + bj*nn1
-      do lj = 0, 2
-        do li = 0, 2
-          k(1 + li + 3*lj) = base + li + lj*nn1
-        end do
-      end do
-      w(1:9) = 0.0_wp
-      gx(1:9) = 0.0_wp
-      gy(1:9) = 0.0_wp
       do c = 1, 4
         u = su(c) - real(bi, wp)
         v = sv(c) - real(bj, wp)
-        hx(1) = max(0.0_wp, 1.0_wp - u)
-        hx(2) = max(0.0_wp, 1.0_wp - abs(u - 1.0_wp))
-        hx(3) = max(0.0_wp, u - 1.0_wp)
-        hy(1) = max(0.0_wp, 1.0_wp - v)
-        hy(2) = max(0.0_wp, 1.0_wp - abs(v - 1.0_wp))
-        hy(3) = max(0.0_wp, v - 1.0_wp)
-        gcx = gc(1, c)
-        gcy = gc(2, c)
-        do lj = 1, 3
-          do li = 1, 3
-            t = hx(li)*hy(lj)
-            w(li + 3*lj - 3) = w(li + 3*lj - 3) + 0.25_wp*t
-            gx(li + 3*lj - 3) = gx(li + 3*lj - 3) + gcx*t
-            gy(li + 3*lj - 3) = gy(li + 3*lj - 3) + gcy*t
-          end do
+        hx(1, c) = max(0.0_wp, 1.0_wp - u)
+        hx(2, c) = max(0.0_wp, 1.0_wp - abs(u - 1.0_wp))
+        hx(3, c) = max(0.0_wp, u - 1.0_wp)
+        hy(1, c) = max(0.0_wp, 1.0_wp - v)
+        hy(2, c) = max(0.0_wp, 1.0_wp - abs(v - 1.0_wp))
+        hy(3, c) = max(0.0_wp, v - 1.0_wp)
+      end do
+      do lj = 1, 3
+        do li = 1, 3
+          a = li + 3*lj - 3
+          k(a) = base + (li - 1) + (lj - 1)*nn1
+          p1 = hx(li, 1)*hy(lj, 1)
+          p2 = hx(li, 2)*hy(lj, 2)
+          p3 = hx(li, 3)*hy(lj, 3)
+          p4 = hx(li, 4)*hy(lj, 4)
+          w(a) = 0.25_wp*((p1 + p2) + (p3 + p4))
+          gx(a) = ga(1)*(p1 - p3) + gb(1)*(p2 - p4)
+          gy(a) = ga(2)*(p1 - p3) + gb(2)*(p2 - p4)
         end do
       end do
     else
