@@ -28,6 +28,8 @@ module cpdi_schedule
   type, public :: strips_t
     integer(ik) :: nstrip = 0                !! strips in use
     integer(ik) :: width = 0                 !! node rows per strip
+    integer(ik) :: rlo = 0                   !! lowest row of any particle (0-based)
+    integer(ik) :: rhi = -1                  !! highest row of any particle (0-based)
     integer(ik), allocatable :: perm(:)      !! particles ordered strip by strip (n)
     integer(ik), allocatable :: start(:)     !! first position of each strip in perm (nrow + 2)
     integer(ik), allocatable :: next(:)      !! fill pointers of the counting sort (nrow + 2)
@@ -60,7 +62,7 @@ contains
     !! Bin the particles by row(ip) (lowest node row of the stencil, 0-based) into strips
     !! span rows high (span: tallest stencil, last minus first node row). A strip b then
     !! reaches rows below (b + 1) span + span, short of strip b + 2: same-colour strips
-    !! touch disjoint nodes.
+    !! touch disjoint nodes. Also records the lowest and highest row (rlo, rhi).
     type(strips_t), intent(inout) :: sp
     integer(ik), intent(in) :: row(:)
     integer(ik), intent(in) :: span
@@ -69,7 +71,11 @@ contains
     sp%width = max(span, 1)
     sp%nstrip = 0
     sp%start = 0
+    sp%rlo = huge(1_ik)
+    sp%rhi = -1
     do ip = 1, size(row)
+      sp%rlo = min(sp%rlo, row(ip))
+      sp%rhi = max(sp%rhi, row(ip))
       b = min(row(ip)/sp%width + 1, ncap)
       sp%start(b + 1) = sp%start(b + 1) + 1
       sp%nstrip = max(sp%nstrip, b)

@@ -86,6 +86,8 @@ module cpdi_step
     real(wp) :: diag(NDIAG) = 0.0_wp
     real(wp) :: timers(NTIMER) = 0.0_wp
     type(strips_t) :: sp                     !! scatter colouring of the particles (per step)
+    integer(ik) :: kprev(2) = [1, huge(1)]   !! nodes the last step's stencils spanned (first, last)
+    integer(ik) :: kw(2) = [1, huge(1)]      !! nodes this step clears and updates (first, last)
     real(wp) :: red(6, NCHUNK) = 0.0_wp      !! per-block partial sums of the reductions
     integer(ik) :: cbad(NCHUNK) = 0          !! per-block first failing particle
     real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
@@ -153,6 +155,7 @@ contains
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
+    s%kprev = [1_ik, s%g%nnodes]   ! the whole grid may hold values: the next step clears it all
     if (s%smax < 0.0_wp) then   ! stress and signal speed of the current state
       if (s%opt%projection /= PROJ_NONE) &
         call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
@@ -261,6 +264,7 @@ contains
       return
     end if
     call strips_build(s%sp, s%sh%row, s%sh%span)
+    call node_range(s)
     call toc(s, 1, t0)
     if (proj) then   ! the operator of this step's configuration, for both projections
       call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st, s%sp)
@@ -300,6 +304,19 @@ contains
     s%diag(3) = real(s%steps, wp)
   end subroutine sim_step
 
+  subroutine node_range(s)
+    !! The nodes a step has to clear and update: the node rows this step's stencils span,
+    !! joined with the last step's. Every grid array is zero outside the rows of the last
+    !! step's stencils, so whole-grid loops over s%kw give the same values as over the grid.
+    type(sim_t), intent(inout) :: s
+    integer(ik) :: kn(2), nn1
+    nn1 = s%g%nn(1)
+    kn(1) = s%sp%rlo*nn1 + 1
+    kn(2) = min((s%sp%rhi + s%sh%span + 1)*nn1, s%g%nnodes)
+    s%kw = [max(1_ik, min(kn(1), s%kprev(1))), min(s%g%nnodes, max(kn(2), s%kprev(2)))]
+    s%kprev = kn
+  end subroutine node_range
+
   subroutine p2g(s)
     !! Scatter mass, momentum and force to the nodes of each particle's velocity field
     !! (and the mass gradient, for contact normals, when there are several fields), strip
@@ -309,7 +326,7 @@ contains
     logical :: simple
 
     !$omp parallel do schedule(static) default(shared) private(k)
-    do k = 1, s%g%nnodes
+    do k = s%kw(1), s%kw(2)
       s%g%m(k, :) = 0.0_wp
       s%g%px(k, :) = 0.0_wp
       s%g%py(k, :) = 0.0_wp
@@ -446,14 +463,14 @@ contains
 
     alpha = s%opt%damping
     associate (g => s%g)
-      call momentum_to_velocity(g, s%mtol, g%px, g%py)
+      call momentum_to_velocity(g, s%mtol, s%kw, g%px, g%py)
       if (s%any_rigid) call impose_rigid(g, g%px, g%py)
       ! Contact corrects the integrated velocity only: the FLIP increment v^{n+1} - v^n then
       ! carries the whole contact impulse to the particles (a correction of v^n would be lost
       ! to them and let approaching bodies keep kinetic energy the grid no longer has).
       do f = 1, g%nf
         !$omp parallel do schedule(static) default(shared) private(k, rm, fx, fy)
-        do k = 1, g%nnodes
+        do k = s%kw(1), s%kw(2)
           if (g%m(k, f) > s%mtol) then
             rm = 1.0_wp/g%m(k, f)
             fx = g%fx(k, f)
@@ -500,17 +517,18 @@ contains
     end if
   end subroutine walls_of_field
 
-  subroutine momentum_to_velocity(g, mtol, qx, qy)
-    !! In place: nodal momentum (qx, qy) of every field -> velocity q/m; nodes lighter than
-    !! mtol carry no velocity.
+  subroutine momentum_to_velocity(g, mtol, kw, qx, qy)
+    !! In place: nodal momentum (qx, qy) of every field -> velocity q/m on nodes kw(1)..kw(2);
+    !! nodes lighter than mtol carry no velocity.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: mtol
+    integer(ik), intent(in) :: kw(2)
     real(wp), intent(inout) :: qx(:, :), qy(:, :)
     integer(ik) :: k, f
     real(wp) :: rm
     do f = 1, g%nf
       !$omp parallel do schedule(static) default(shared) private(k, rm)
-      do k = 1, g%nnodes
+      do k = kw(1), kw(2)
         if (g%m(k, f) > mtol) then
           rm = 1.0_wp/g%m(k, f)
           qx(k, f) = qx(k, f)*rm
@@ -813,7 +831,7 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, f, b, colour, c, lo, hi
     !$omp parallel do schedule(static) default(shared) private(k)
-    do k = 1, s%g%nnodes
+    do k = s%kw(1), s%kw(2)
       s%g%vx(k, :) = 0.0_wp
       s%g%vy(k, :) = 0.0_wp
     end do
@@ -830,7 +848,7 @@ contains
       end do
       !$omp end parallel do
     end do
-    call momentum_to_velocity(s%g, s%mtol, s%g%vx, s%g%vy)
+    call momentum_to_velocity(s%g, s%mtol, s%kw, s%g%vx, s%g%vy)
     if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
     do f = 1, s%g%nf
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
