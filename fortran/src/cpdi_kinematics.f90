@@ -10,7 +10,7 @@ module cpdi_kinematics
   implicit none
   private
 
-  public :: left_cauchy_green, log_strain, log_strain_lapack, det2, map_domain
+  public :: left_cauchy_green, log_strain, log_strain_lapack, det2, map_domain, map_domains
 
   interface
     subroutine dsyev(jobz, uplo, n, a, lda, w, work, lwork, info)
@@ -40,6 +40,17 @@ contains
     r(3) = F(1)*r0(3) + F(3)*r0(4)
     r(4) = F(2)*r0(3) + F(4)*r0(4)
   end function map_domain
+
+  pure subroutine map_domains(lo, hi, F, r0, r)
+    !! map_domain of particles lo..hi on plain arrays (in this module, so it is inlined).
+    integer(ik), intent(in) :: lo, hi
+    real(wp), intent(in) :: F(4, *), r0(4, *)
+    real(wp), intent(inout) :: r(4, *)
+    integer(ik) :: ip
+    do ip = lo, hi
+      r(:, ip) = map_domain(F(:, ip), r0(:, ip))
+    end do
+  end subroutine map_domains
 
   pure subroutine left_cauchy_green(F, b)
     !! b = F F^T as [b11, b22, b12].

@@ -33,7 +33,7 @@ module cpdi_materials
     logical :: project = .false.  !! takes part in the volumetric projection
   end type material_t
 
-  public :: material_init, material_stress
+  public :: material_init, material_stress, material_stresses
 
 contains
 
@@ -165,4 +165,17 @@ contains
       psi = 0.0_wp
     end select
   end subroutine material_stress
+
+  pure subroutine material_stresses(mats, kin, lo, hi, mat, F, L, jv, sig, psi)
+    !! material_stress of particles lo..hi with materials mats(mat(ip)), on plain arrays
+    !! (in this module, so the models are inlined).
+    type(material_t), intent(in) :: mats(:)
+    integer(ik), intent(in) :: kin, lo, hi, mat(*)
+    real(wp), intent(in) :: F(4, *), L(4, *), jv(*)
+    real(wp), intent(inout) :: sig(4, *), psi(*)
+    integer(ik) :: ip
+    do ip = lo, hi
+      call material_stress(mats(mat(ip)), kin, F(:, ip), L(:, ip), jv(ip), sig(:, ip), psi(ip))
+    end do
+  end subroutine material_stresses
 end module cpdi_materials

@@ -22,8 +22,8 @@ module cpdi_step
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_GIMP, &
                         SHAPE_CPDI, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range
-  use cpdi_materials, only: material_t, material_stress, MAT_FLUID, KIN_LOG
-  use cpdi_kinematics, only: det2, map_domain
+  use cpdi_materials, only: material_t, material_stresses, MAT_FLUID, KIN_LOG
+  use cpdi_kinematics, only: det2, map_domains
   use cpdi_projection, only: projection_t, projection_alloc, projection_setup, projection_apply, PROJ_NONE
   implicit none
   private
@@ -971,11 +971,10 @@ contains
           p%work(1, ip) = log(deta)          ! volumetric strain increment, projected
           p%work(2, ip) = det2(f)            ! J at the start of the step
           p%work(3, ip) = p%work(1, ip)      ! raw increment, for the stabilisation
-        else
-          call update_domain(s, ip)
         end if
       end do
     end associate
+    if (.not. proj .and. bad == 0) call update_domains(s, lo, hi)
   end subroutine deformation_block
 
   subroutine projected_deformation(s)
@@ -1002,34 +1001,44 @@ contains
           s%p%vol(ip) = jn*s%p%vol0(ip)
           s%p%jbar(ip) = jn
         end if
-        call update_domain(s, ip)
       end do
+      call update_domains(s, lo, hi)
     end do
     !$omp end parallel do
   end subroutine projected_deformation
 
-  subroutine update_domain(s, ip)
-    !! CPDI domain of particle ip from its F, with optional Homel et al. (2016) scaling.
+  subroutine update_domains(s, lo, hi)
+    !! CPDI domains of particles lo..hi from their F (domain_block).
     type(sim_t), intent(inout) :: s
-    integer(ik), intent(in) :: ip
-    real(wp) :: la(2), lb(2), na, nb, lc, r(4)
+    integer(ik), intent(in) :: lo, hi
     if (s%opt%shape /= SHAPE_CPDI) return
-    r = map_domain(s%p%F(:, ip), s%p%r0(:, ip))
-    if (s%opt%domain_scaling == 1) then
-      lc = s%opt%lcrit*s%g%h
-      la = r(1:2) + r(3:4)
-      lb = r(1:2) - r(3:4)
+    call domain_block(lo, hi, s%p%F, s%p%r0, s%opt%domain_scaling == 1, s%opt%lcrit*s%g%h, s%p%r)
+  end subroutine update_domains
+
+  subroutine domain_block(lo, hi, f, r0, scaled, lc, r)
+    !! r = F r0 (map_domains) for particles lo..hi, with optional Homel et al. (2016)
+    !! scaling: diagonals longer than lc are shortened to lc.
+    integer(ik), intent(in) :: lo, hi
+    real(wp), intent(in) :: f(4, *), r0(4, *), lc
+    logical, intent(in) :: scaled
+    real(wp), intent(inout) :: r(4, *)
+    integer(ik) :: ip
+    real(wp) :: la(2), lb(2), na, nb
+    call map_domains(lo, hi, f, r0, r)
+    if (.not. scaled) return
+    do ip = lo, hi
+      la = r(1:2, ip) + r(3:4, ip)
+      lb = r(1:2, ip) - r(3:4, ip)
       na = norm2(la)
       nb = norm2(lb)
       if (na > lc .or. nb > lc) then
         if (na > lc) la = la*(lc/na)
         if (nb > lc) lb = lb*(lc/nb)
-        r(1:2) = 0.5_wp*(la + lb)
-        r(3:4) = 0.5_wp*(la - lb)
+        r(1:2, ip) = 0.5_wp*(la + lb)
+        r(3:4, ip) = 0.5_wp*(la - lb)
       end if
-    end if
-    s%p%r(:, ip) = r
-  end subroutine update_domain
+    end do
+  end subroutine domain_block
 
   subroutine stress_update(s, st)
     !! Stress and energy of every particle; signal speed for the next step.
@@ -1072,17 +1081,17 @@ contains
     real(wp), intent(inout) :: smax, vdt
     integer(ik), intent(out) :: bad
     integer(ik) :: ip, im
-    real(wp) :: se, c, rho, vmag, psi, sig(4), dis, tr3
+    real(wp) :: se, c, rho, vmag, sig(4), dis, tr3
 
     se = 0.0_wp
     dis = 0.0_wp
     bad = 0
     associate (p => s%p)
+      call material_stresses(s%mats, s%opt%kinematics, lo, hi, p%mat, p%F, p%L, p%jbar, p%sig, p%psi)
       do ip = lo, hi
         im = p%mat(ip)
-        call material_stress(s%mats(im), s%opt%kinematics, p%F(:, ip), p%L(:, ip), p%jbar(ip), sig, psi)
-        p%sig(:, ip) = sig
-        p%psi(ip) = psi*p%vol0(ip)
+        sig = p%sig(:, ip)
+        p%psi(ip) = p%psi(ip)*p%vol0(ip)
         se = se + p%psi(ip)
         rho = p%m(ip)/p%vol(ip)
         vmag = sqrt(p%v(1, ip)**2 + p%v(2, ip)**2)
