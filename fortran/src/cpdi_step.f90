@@ -1082,7 +1082,9 @@ contains
     integer(ik), intent(out) :: bad
     integer(ik) :: ip, im
     real(wp) :: se, c, rho, vmag, sig(4), dis, tr3
+    logical :: proj
 
+    proj = s%opt%projection /= PROJ_NONE
     se = 0.0_wp
     dis = 0.0_wp
     bad = 0
@@ -1101,6 +1103,10 @@ contains
           cycle
         end if
         smax = max(smax, c)
+        if (proj) then   ! the mean stress, for project_mean_stress
+          p%work(1, ip) = (sig(1) + sig(2) + sig(4))/3.0_wp
+          p%work(2, ip) = p%work(1, ip)
+        end if
         if (s%mats(im)%model == MAT_FLUID .and. s%mats(im)%visc > 0.0_wp) then
           vdt = min(vdt, 0.5_wp*rho*s%g%h**2/s%mats(im)%visc)
           ! viscous dissipation 2 mu dev(D):dev(D) V (plane strain, D_zz = 0)
@@ -1114,22 +1120,14 @@ contains
   end subroutine stress_block
 
   subroutine project_mean_stress(s, st)
-    !! Replace the mean stress (sxx + syy + szz)/3 of the participating particles by its
-    !! projection (blended with beta of the particle's own, see projected_deformation);
-    !! the deviatoric stress is left as it is. Uses the operator set up for this step.
+    !! Replace the mean stress (sxx + syy + szz)/3 of the participating particles, left in
+    !! work(1:2, :) by stress_update, by its projection (blended with beta of the particle's
+    !! own, see projected_deformation); the deviatoric stress is left as it is. Uses the
+    !! operator set up for this step.
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: c, lo, hi, ip
     real(wp) :: dm
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip)
-    do c = 1, NCHUNK
-      call chunk_range(c, s%p%n, lo, hi)
-      do ip = lo, hi
-        s%p%work(1, ip) = (s%p%sig(1, ip) + s%p%sig(2, ip) + s%p%sig(4, ip))/3.0_wp
-        s%p%work(2, ip) = s%p%work(1, ip)
-      end do
-    end do
-    !$omp end parallel do
     call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
     if (.not. st%ok()) return
     !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, dm)
