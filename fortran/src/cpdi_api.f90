@@ -12,7 +12,7 @@ module cpdi_api
   use cpdi_particles, only: particles_alloc
   use cpdi_shape, only: shape_compute, shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
-  use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domain
+  use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
@@ -298,8 +298,8 @@ contains
       do ip = 1, n
         s%p%jbar(ip) = det2(F(:, ip))
         s%p%vol(ip) = s%p%jbar(ip)*s%p%vol0(ip)
-        s%p%r(:, ip) = map_domain(F(:, ip), s%p%r0(:, ip))
       end do
+      call map_domains(1, n, s%p%F, s%p%r0, s%p%r)
       s%smax = -1.0_wp
     end if
     call finish(st, ierr, msg)

@@ -10,7 +10,7 @@ module cpdi_kinematics
   implicit none
   private
 
-  public :: left_cauchy_green, log_strain, log_strain_lapack, det2, map_domain, map_domains
+  public :: left_cauchy_green, log_strain, log_strain_lapack, det2, map_domains
 
   interface
     subroutine dsyev(jobz, uplo, n, a, lda, w, work, lwork, info)
@@ -31,24 +31,18 @@ contains
     det2 = F(1)*F(4) - F(3)*F(2)
   end function det2
 
-  pure function map_domain(F, r0) result(r)
-    !! CPDI domain vectors carried by F: r_k = F r0_k, layout [r1x, r1y, r2x, r2y].
-    real(wp), intent(in) :: F(4), r0(4)
-    real(wp) :: r(4)
-    r(1) = F(1)*r0(1) + F(3)*r0(2)
-    r(2) = F(2)*r0(1) + F(4)*r0(2)
-    r(3) = F(1)*r0(3) + F(3)*r0(4)
-    r(4) = F(2)*r0(3) + F(4)*r0(4)
-  end function map_domain
-
   pure subroutine map_domains(lo, hi, F, r0, r)
-    !! map_domain of particles lo..hi on plain arrays (in this module, so it is inlined).
+    !! CPDI domain vectors carried by F, r_k = F r0_k (layout [r1x, r1y, r2x, r2y]), for
+    !! particles lo..hi on plain arrays.
     integer(ik), intent(in) :: lo, hi
     real(wp), intent(in) :: F(4, *), r0(4, *)
     real(wp), intent(inout) :: r(4, *)
     integer(ik) :: ip
     do ip = lo, hi
-      r(:, ip) = map_domain(F(:, ip), r0(:, ip))
+      r(1, ip) = F(1, ip)*r0(1, ip) + F(3, ip)*r0(2, ip)
+      r(2, ip) = F(2, ip)*r0(1, ip) + F(4, ip)*r0(2, ip)
+      r(3, ip) = F(1, ip)*r0(3, ip) + F(3, ip)*r0(4, ip)
+      r(4, ip) = F(2, ip)*r0(3, ip) + F(4, ip)*r0(4, ip)
     end do
   end subroutine map_domains
 
