@@ -748,32 +748,32 @@ contains
     integer(ik), intent(in) :: lo, hi, nm, np, ovf(*), idx(nm, *), pidx(np, *)
     real(wp), intent(in) :: gx(nm, *), gy(nm, *), pgx(np, *), pgy(np, *), vx(*), vy(*)
     real(wp), intent(inout) :: l(4, *)
-    integer(ik) :: ip, j, a, k
+    integer(ik) :: ip, j
     real(wp) :: l1, l2, l3, l4
     do ip = lo, hi
       l1 = 0.0_wp
       l2 = 0.0_wp
       l3 = 0.0_wp
       l4 = 0.0_wp
-      do a = 1, nm
-        k = idx(a, ip)
-        l1 = l1 + vx(k)*gx(a, ip)
-        l2 = l2 + vy(k)*gx(a, ip)
-        l3 = l3 + vx(k)*gy(a, ip)
-        l4 = l4 + vy(k)*gy(a, ip)
-      end do
+      call vgrad_slots(nm, idx(:, ip), gx(:, ip), gy(:, ip))
       j = ovf(ip)
-      if (j /= 0) then
-        do a = 1, np
-          k = pidx(a, j)
-          l1 = l1 + vx(k)*pgx(a, j)
-          l2 = l2 + vy(k)*pgx(a, j)
-          l3 = l3 + vx(k)*pgy(a, j)
-          l4 = l4 + vy(k)*pgy(a, j)
-        end do
-      end if
+      if (j /= 0) call vgrad_slots(np, pidx(:, j), pgx(:, j), pgy(:, j))
       l(:, ip) = [l1, l2, l3, l4]
     end do
+  contains
+    subroutine vgrad_slots(ns, idx, gx, gy)
+      !! Sums of ns slots of the current particle.
+      integer(ik), intent(in) :: ns, idx(ns)
+      real(wp), intent(in) :: gx(ns), gy(ns)
+      integer(ik) :: a, k
+      do a = 1, ns
+        k = idx(a)
+        l1 = l1 + vx(k)*gx(a)
+        l2 = l2 + vy(k)*gx(a)
+        l3 = l3 + vx(k)*gy(a)
+        l4 = l4 + vy(k)*gy(a)
+      end do
+    end subroutine vgrad_slots
   end subroutine vgrad_plain
 
   subroutine remap_strip_simple(perm, nm, np, ovf, idx, w, pidx, pw, pm, pv, qx, qy)
