@@ -32,6 +32,8 @@ module cpdi_shape
   integer(ik), parameter, public :: SHAPE_GIMP = 1
   integer(ik), parameter, public :: SHAPE_CPDI = 2
 
+  integer(ik), parameter :: CPDI_BATCH = 16   !! particles per vectorised CPDI batch
+
   integer(ik), parameter, public :: SHAPE_FAIL_NONE = 0      !! no failure
   integer(ik), parameter, public :: SHAPE_FAIL_OUTSIDE = 1   !! support beyond the padded grid
   integer(ik), parameter, public :: SHAPE_FAIL_INVERTED = 2  !! CPDI domain with r1 x r2 <= 0
@@ -266,20 +268,132 @@ contains
     end do
   end subroutine shape_gimp_one
 
-  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, ko, wo, gxo, gyo, cnt, c0, span, fail)
-    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y]: slots
-    !! 1..9 in k, w, gx, gy, slots 10..16 (if cnt = 16) in ko, wo, gxo, gyo; c0 and span are
-    !! the first node row of the stencil and its height minus one.
+  pure subroutine shape_cpdi_batch(nb, x, r, gorig, rh, nn, k, w, gx, gy, row, span, merged)
+    !! CPDI1 weights of nb <= CPDI_BATCH particles in the usual case: all four corners of
+    !! the domain r = [r1x, r1y, r2x, r2y] lie in one 2x2-cell block of the grid, and the 16
+    !! corner-node pairs merge into the 3x3 node stencil. Corner c's bilinear values there
+    !! are the outer product P_c = X_c (x) Y_c of the 1D hats X(l) = max(0, 1 - |u - l|),
+    !! l = 0, 1, 2, u = its local coordinate in [0, 2), and likewise Y:
+    !! w = (P1 + P2 + P3 + P4)/4 and, as g3 = -g1 and g4 = -g2, grad = g1 (P1 - P3) +
+    !! g2 (P2 - P4). Every loop runs across the batch's particles (lanes), so the compiler
+    !! vectorises them. A particle for which this does not hold (merged = .false.:
+    !! inverted, outside the grid, or a domain spanning more cells) is left untouched, for
+    !! shape_cpdi_one. row, span: first node row of the stencil, height minus one.
+    integer(ik), intent(in) :: nb, nn(2)
+    real(wp), intent(in) :: x(2, nb), r(4, nb), gorig(2), rh
+    integer(ik), intent(inout) :: k(9, nb), row(nb), span(nb)
+    real(wp), intent(inout) :: w(9, nb), gx(9, nb), gy(9, nb)
+    logical, intent(out) :: merged(nb)
+    real(wp), parameter :: SG(2, 4) = reshape([-1.0_wp, -1.0_wp, 1.0_wp, -1.0_wp, 1.0_wp, 1.0_wp, -1.0_wp, 1.0_wp], &
+                                              [2, 4])   ! corner c = x + SG(1, c) r1 + SG(2, c) r2
+    real(wp) :: su(CPDI_BATCH, 4), sv(CPDI_BATCH, 4), hx(CPDI_BATCH, 3, 4), hy(CPDI_BATCH, 3, 4)
+    real(wp) :: ga(CPDI_BATCH, 2), gb(CPDI_BATCH, 2), bw(CPDI_BATCH, 9), bx(CPDI_BATCH, 9), by(CPDI_BATCH, 9)
+    real(wp) :: cross, rv, umin, umax, vmin, vmax, u, v, p1, p2, p3, p4
+    integer(ik) :: l, c, li, lj, a, bi(CPDI_BATCH), bj(CPDI_BATCH), ei, ej
+    integer(ik) :: nout(CPDI_BATCH)
+    !$omp simd private(cross, rv)
+    do l = 1, nb
+      cross = r(1, l)*r(4, l) - r(2, l)*r(3, l)
+      merged(l) = cross > 0.0_wp
+      rv = 1.0_wp/(4.0_wp*max(cross, tiny(cross)))   ! 1 / V_p (finite in an inverted lane)
+      ga(l, 1) = (r(2, l) - r(4, l))*rv   ! multiplies N(x1) - N(x3)
+      ga(l, 2) = (r(3, l) - r(1, l))*rv
+      gb(l, 1) = (r(2, l) + r(4, l))*rv   ! multiplies N(x2) - N(x4)
+      gb(l, 2) = (-r(1, l) - r(3, l))*rv
+    end do
+    do c = 1, 4
+      !$omp simd
+      do l = 1, nb
+        su(l, c) = (x(1, l) + SG(1, c)*r(1, l) + SG(2, c)*r(3, l) - gorig(1))*rh
+        sv(l, c) = (x(2, l) + SG(1, c)*r(2, l) + SG(2, c)*r(4, l) - gorig(2))*rh
+      end do
+    end do
+    ! corner cells with no integer division; the truncation is monotonic, so the extreme
+    ! cells come from the extreme corners (clamped: a failing lane converts no junk)
+    !$omp simd private(umin, umax, vmin, vmax, ei, ej)
+    do l = 1, nb
+      umin = lesser(lesser(su(l, 1), su(l, 2)), lesser(su(l, 3), su(l, 4)))
+      umax = greater(greater(su(l, 1), su(l, 2)), greater(su(l, 3), su(l, 4)))
+      vmin = lesser(lesser(sv(l, 1), sv(l, 2)), lesser(sv(l, 3), sv(l, 4)))
+      vmax = greater(greater(sv(l, 1), sv(l, 2)), greater(sv(l, 3), sv(l, 4)))
+      bi(l) = int(lesser(greater(umin, 0.0_wp), real(nn(1), wp)), ik)
+      bj(l) = int(lesser(greater(vmin, 0.0_wp), real(nn(2), wp)), ik)
+      ei = int(lesser(greater(umax, 0.0_wp), real(nn(1), wp)), ik)
+      ej = int(lesser(greater(vmax, 0.0_wp), real(nn(2), wp)), ik)
+      span(l) = ej + 1 - bj(l)
+      ! all corners inside the grid (x < n - 1 <=> n - 1 - x > 0 exactly), in a 2x2-cell block
+      ! (counted, not chained with .and., which leaves a branch in the loop)
+      nout(l) = merge(0, 1, lesser(umin, vmin) >= 0.0_wp) + &
+                merge(0, 1, lesser(real(nn(1) - 1, wp) - umax, real(nn(2) - 1, wp) - vmax) > 0.0_wp) + &
+                merge(0, 1, max(ei - bi(l), span(l) - 1) <= 1)
+    end do
+    do c = 1, 4
+      !$omp simd private(u, v)
+      do l = 1, nb
+        u = su(l, c) - real(bi(l), wp)
+        v = sv(l, c) - real(bj(l), wp)
+        hx(l, 1, c) = max(0.0_wp, 1.0_wp - u)
+        hx(l, 2, c) = max(0.0_wp, 1.0_wp - abs(u - 1.0_wp))
+        hx(l, 3, c) = max(0.0_wp, u - 1.0_wp)
+        hy(l, 1, c) = max(0.0_wp, 1.0_wp - v)
+        hy(l, 2, c) = max(0.0_wp, 1.0_wp - abs(v - 1.0_wp))
+        hy(l, 3, c) = max(0.0_wp, v - 1.0_wp)
+      end do
+    end do
+    do lj = 1, 3
+      do li = 1, 3
+        a = li + 3*lj - 3
+        !$omp simd private(p1, p2, p3, p4)
+        do l = 1, nb
+          p1 = hx(l, li, 1)*hy(l, lj, 1)
+          p2 = hx(l, li, 2)*hy(l, lj, 2)
+          p3 = hx(l, li, 3)*hy(l, lj, 3)
+          p4 = hx(l, li, 4)*hy(l, lj, 4)
+          bw(l, a) = 0.25_wp*((p1 + p2) + (p3 + p4))
+          bx(l, a) = ga(l, 1)*(p1 - p3) + gb(l, 1)*(p2 - p4)
+          by(l, a) = ga(l, 2)*(p1 - p3) + gb(l, 2)*(p2 - p4)
+        end do
+      end do
+    end do
+    do l = 1, nb
+      merged(l) = merged(l) .and. nout(l) == 0
+      if (.not. merged(l)) cycle
+      row(l) = bj(l)
+      k(:, l) = bi(l) + 1 + bj(l)*nn(1) + [0, 1, 2, nn(1), nn(1) + 1, nn(1) + 2, 2*nn(1), 2*nn(1) + 1, 2*nn(1) + 2]
+      w(:, l) = bw(l, :)
+      gx(:, l) = bx(l, :)
+      gy(:, l) = by(l, :)
+    end do
+  contains
+    elemental real(wp) function lesser(a, b)
+      !! min(a, b) as a plain selection (gfortran's MIN keeps a branch for NaN arguments,
+      !! which stops the vectoriser; a NaN corner fails the range test anyway)
+      real(wp), intent(in) :: a, b
+      lesser = merge(a, b, a < b)
+    end function lesser
+
+    elemental real(wp) function greater(a, b)
+      !! max(a, b) as a plain selection (see lesser)
+      real(wp), intent(in) :: a, b
+      greater = merge(a, b, a > b)
+    end function greater
+  end subroutine shape_cpdi_batch
+
+  pure subroutine shape_cpdi_one(g, x, r, k, w, gx, gy, ko, wo, gxo, gyo, c0, span, fail)
+    !! CPDI1 weights at one particle with domain vectors r = [r1x, r1y, r2x, r2y], in the
+    !! general form: the 4 x 4 corner-node pairs, slots 1..9 in k, w, gx, gy and slots
+    !! 10..16 in ko, wo, gxo, gyo (a node may appear twice: consumers add them, exactly).
+    !! For the particles shape_cpdi_batch does not merge. c0 and span are the first node row
+    !! of the stencil and its height minus one.
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: x(2), r(4)
     integer(ik), intent(out) :: k(9), ko(7)
     real(wp), intent(out) :: w(9), gx(9), gy(9), wo(7), gxo(7), gyo(7)
-    integer(ik), intent(out) :: cnt, c0, span, fail
-    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su(4), sv(4), u, v
-    real(wp) :: hx(3, 4), hy(3, 4), p1, p2, p3, p4, w16(16), gx16(16), gy16(16)
-    integer(ik) :: c, s0, i0(4), j0(4), bi, bj, li, lj, a, base, nn1, k16(16)
+    integer(ik), intent(out) :: c0, span, fail
+    real(wp) :: cross, rv, xc(2, 4), gc(2, 4), nv(4), ga(2), gb(2), rh, su, sv, u, v
+    real(wp) :: w16(16), gx16(16), gy16(16)
+    integer(ik) :: c, s0, i0(4), j0(4), base, nn1, k16(16)
     fail = SHAPE_FAIL_NONE
-    cnt = 16
     c0 = 0
     span = 1
     cross = r(1)*r(4) - r(2)*r(3)
@@ -302,76 +416,38 @@ contains
     gc(:, 4) = -gb
     rh = 1.0_wp/g%h
     nn1 = g%nn(1)
-    ! corner cells, with no integer division (this is the hot path)
     do c = 1, 4
-      su(c) = (xc(1, c) - g%gorig(1))*rh
-      sv(c) = (xc(2, c) - g%gorig(2))*rh
-      if (.not. (su(c) >= 0.0_wp .and. sv(c) >= 0.0_wp .and. su(c) < real(nn1 - 1, wp) &
-                 .and. sv(c) < real(g%nn(2) - 1, wp))) then
+      su = (xc(1, c) - g%gorig(1))*rh
+      sv = (xc(2, c) - g%gorig(2))*rh
+      if (.not. (su >= 0.0_wp .and. sv >= 0.0_wp .and. su < real(nn1 - 1, wp) &
+                 .and. sv < real(g%nn(2) - 1, wp))) then
         fail = SHAPE_FAIL_OUTSIDE
         call clear(k, w, gx, gy)
         call clear(ko, wo, gxo, gyo)
         return
       end if
-      i0(c) = int(su(c), ik)
-      j0(c) = int(sv(c), ik)
+      i0(c) = int(su, ik)
+      j0(c) = int(sv, ik)
+      u = su - real(i0(c), wp)
+      v = sv - real(j0(c), wp)
+      nv = [(1.0_wp - u)*(1.0_wp - v), u*(1.0_wp - v), (1.0_wp - u)*v, u*v]
+      s0 = 4*(c - 1)
+      base = i0(c) + 1 + j0(c)*nn1
+      k16(s0 + 1:s0 + 4) = [base, base + 1, base + nn1, base + nn1 + 1]
+      w16(s0 + 1:s0 + 4) = 0.25_wp*nv
+      gx16(s0 + 1:s0 + 4) = nv*gc(1, c)
+      gy16(s0 + 1:s0 + 4) = nv*gc(2, c)
     end do
-    bi = min(i0(1), i0(2), i0(3), i0(4))
-    bj = min(j0(1), j0(2), j0(3), j0(4))
-    c0 = bj
-    span = max(j0(1), j0(2), j0(3), j0(4)) + 1 - bj
-    if (span <= 2 .and. max(i0(1), i0(2), i0(3), i0(4)) - bi <= 1) then
-      ! All corners in a 2x2-cell block: merge into the 3x3 node stencil. Corner c's
-      ! bilinear values there are the outer product P_c = X_c (x) Y_c of the 1D hats
-      ! X(l) = max(0, 1 - |u - l|), u = its local coordinate in [0, 2), and likewise Y:
-      ! w = (P1 + P2 + P3 + P4)/4 and, as g3 = -g1 and g4 = -g2,
-      ! grad = g1 (P1 - P3) + g2 (P2 - P4): a fixed 9-node loop with no indexing.
-      cnt = 9
-      base = bi + 1 + bj*nn1
-      do c = 1, 4
-        u = su(c) - real(bi, wp)
-        v = sv(c) - real(bj, wp)
-        hx(1, c) = max(0.0_wp, 1.0_wp - u)
-        hx(2, c) = max(0.0_wp, 1.0_wp - abs(u - 1.0_wp))
-        hx(3, c) = max(0.0_wp, u - 1.0_wp)
-        hy(1, c) = max(0.0_wp, 1.0_wp - v)
-        hy(2, c) = max(0.0_wp, 1.0_wp - abs(v - 1.0_wp))
-        hy(3, c) = max(0.0_wp, v - 1.0_wp)
-      end do
-      do lj = 1, 3
-        do li = 1, 3
-          a = li + 3*lj - 3
-          k(a) = base + (li - 1) + (lj - 1)*nn1
-          p1 = hx(li, 1)*hy(lj, 1)
-          p2 = hx(li, 2)*hy(lj, 2)
-          p3 = hx(li, 3)*hy(lj, 3)
-          p4 = hx(li, 4)*hy(lj, 4)
-          w(a) = 0.25_wp*((p1 + p2) + (p3 + p4))
-          gx(a) = ga(1)*(p1 - p3) + gb(1)*(p2 - p4)
-          gy(a) = ga(2)*(p1 - p3) + gb(2)*(p2 - p4)
-        end do
-      end do
-    else
-      do c = 1, 4
-        u = su(c) - real(i0(c), wp)
-        v = sv(c) - real(j0(c), wp)
-        nv = [(1.0_wp - u)*(1.0_wp - v), u*(1.0_wp - v), (1.0_wp - u)*v, u*v]
-        s0 = 4*(c - 1)
-        base = i0(c) + 1 + j0(c)*nn1
-        k16(s0 + 1:s0 + 4) = [base, base + 1, base + nn1, base + nn1 + 1]
-        w16(s0 + 1:s0 + 4) = 0.25_wp*nv
-        gx16(s0 + 1:s0 + 4) = nv*gc(1, c)
-        gy16(s0 + 1:s0 + 4) = nv*gc(2, c)
-      end do
-      k = k16(1:9)
-      w = w16(1:9)
-      gx = gx16(1:9)
-      gy = gy16(1:9)
-      ko = k16(10:16)
-      wo = w16(10:16)
-      gxo = gx16(10:16)
-      gyo = gy16(10:16)
-    end if
+    c0 = minval(j0)
+    span = maxval(j0) + 1 - c0
+    k = k16(1:9)
+    w = w16(1:9)
+    gx = gx16(1:9)
+    gy = gy16(1:9)
+    ko = k16(10:16)
+    wo = w16(10:16)
+    gxo = gx16(10:16)
+    gyo = gy16(10:16)
   end subroutine shape_cpdi_one
 
   pure subroutine clear(k, w, gx, gy)
@@ -397,28 +473,47 @@ contains
     type(shape_t), intent(inout) :: sh
     integer(ik), intent(out) :: bad, fail
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip, f, c, lo, hi, span, sp, nc, j, cbad(NCHUNK), cfail(NCHUNK), cnov(NCHUNK), col(NCHUNK)
-    integer(ik) :: ko(7), k9(9), r9
+    integer(ik) :: ip, f, c, lo, hi, span, sp, j, cbad(NCHUNK), cfail(NCHUNK), cnov(NCHUNK), col(NCHUNK)
+    integer(ik) :: ko(7), k9(9), r9, b0, b1, bspan(CPDI_BATCH)
     real(wp) :: lp(2), wo(7), gxo(7), gyo(7), w9(9), gx9(9), gy9(9)
+    logical :: merged(CPDI_BATCH)
     integer :: ierr
     span = 1
     cbad = 0
     cfail = SHAPE_FAIL_NONE
     cnov = 0
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp, nc, ko, wo, gxo, gyo) &
-    !$omp reduction(max:span)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, &
+    !$omp bspan, merged) reduction(max:span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
+      if (sh%kind == SHAPE_CPDI) then
+        do b0 = lo, hi, CPDI_BATCH
+          b1 = min(b0 + CPDI_BATCH - 1, hi)
+          call shape_cpdi_batch(b1 - b0 + 1, p%x(:, b0:b1), p%r(:, b0:b1), g%gorig, 1.0_wp/g%h, g%nn, &
+                                sh%idx(:, b0:b1), sh%w(:, b0:b1), sh%gx(:, b0:b1), sh%gy(:, b0:b1), sh%row(b0:b1), &
+                                bspan, merged)
+          do ip = b0, b1
+            sh%ovf(ip) = 0
+            if (merged(ip - b0 + 1)) then
+              span = max(span, bspan(ip - b0 + 1))
+              cycle
+            end if
+            call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), &
+                                sh%gy(:, ip), ko, wo, gxo, gyo, sh%row(ip), sp, f)
+            if (f == SHAPE_FAIL_NONE) then   ! a pool column, numbered below
+              sh%ovf(ip) = -1
+              cnov(c) = cnov(c) + 1
+              span = max(span, sp)
+            else if (cbad(c) == 0) then
+              cbad(c) = ip
+              cfail(c) = f
+            end if
+          end do
+        end do
+        cycle
+      end if
       do ip = lo, hi
         select case (sh%kind)
-        case (SHAPE_CPDI)
-          call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), &
-                              sh%gy(:, ip), ko, wo, gxo, gyo, nc, sh%row(ip), sp, f)
-          sh%ovf(ip) = 0
-          if (nc > sh%nm .and. f == SHAPE_FAIL_NONE) then   ! a pool column, numbered below
-            sh%ovf(ip) = -1
-            cnov(c) = cnov(c) + 1
-          end if
         case (SHAPE_GIMP)
           lp = [abs(p%r0(1, ip)) + abs(p%r0(3, ip)), abs(p%r0(2, ip)) + abs(p%r0(4, ip))]
           call shape_gimp_one(g, p%x(:, ip), lp, sh%idx(:, ip), sh%w(:, ip), sh%gx(:, ip), sh%gy(:, ip), &
@@ -459,7 +554,7 @@ contains
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
       return
     end if
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, j, nc, sp, f, k9, w9, gx9, gy9, r9)
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
     do c = 1, NCHUNK
       if (cnov(c) == 0) cycle
       call chunk_range(c, p%n, lo, hi)
@@ -467,7 +562,7 @@ contains
       do ip = lo, hi
         if (sh%ovf(ip) == 0) cycle
         call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), k9, w9, gx9, gy9, sh%pidx(:, j), sh%pw(:, j), &
-                            sh%pgx(:, j), sh%pgy(:, j), nc, r9, sp, f)
+                            sh%pgx(:, j), sh%pgy(:, j), r9, sp, f)
         sh%ovf(ip) = j
         j = j + 1
       end do
