@@ -7,6 +7,7 @@ module cpdi_particles
   !! Domain layout: `[r1x, r1y, r2x, r2y]` (CPDI half-vectors).
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC
+  use cpdi_memory, only: advise_huge
   implicit none
   private
 
@@ -49,6 +50,15 @@ contains
       return
     end if
     p%n = n
+    call advise_huge(p%x, size(p%x))   ! before the first touch (cpdi_memory)
+    call advise_huge(p%v, size(p%v))
+    call advise_huge(p%F, size(p%F))
+    call advise_huge(p%L, size(p%L))
+    call advise_huge(p%sig, size(p%sig))
+    call advise_huge(p%r0, size(p%r0))
+    call advise_huge(p%r, size(p%r))
+    call advise_huge(p%bf, size(p%bf))
+    call advise_huge(p%work, size(p%work))
     p%F(1, :) = 1.0_wp
     p%F(2, :) = 0.0_wp
     p%F(3, :) = 0.0_wp

@@ -22,6 +22,7 @@ module cpdi_shape
   !!   S_ip = 1/4 sum_c N_i(x_c), 16 slots (FORMULAS 4.1), 9 of them main.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC
+  use cpdi_memory, only: advise_huge, advise_huge_int
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
   use cpdi_schedule, only: NCHUNK, chunk_range
@@ -89,6 +90,10 @@ contains
     allocate (sh%idx(sh%nm, n), sh%ovf(n), sh%row(n), sh%w(sh%nm, n), sh%gx(sh%nm, n), sh%gy(sh%nm, n), &
               stat=ierr)
     if (ierr == 0) then
+      call advise_huge_int(sh%idx, size(sh%idx))   ! before the first touch (cpdi_memory)
+      call advise_huge(sh%w, size(sh%w))
+      call advise_huge(sh%gx, size(sh%gx))
+      call advise_huge(sh%gy, size(sh%gy))
       sh%ovf = 0
       sh%row = 0
       call pool_reserve(sh, 0_ik, ierr)
