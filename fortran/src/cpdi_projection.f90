@@ -256,8 +256,18 @@ contains
     integer(ik) :: colour, b, c
     real(wp) :: wq
     wq = 1.0_wp/real(pr%nq, wp)
-    acc = 0.0_wp
-    if (present(mass)) mass = 0.0_wp
+    !$omp parallel do schedule(static) default(shared) private(c)
+    do c = 1, size(acc)
+      acc(c) = 0.0_wp
+    end do
+    !$omp end parallel do
+    if (present(mass)) then
+      !$omp parallel do schedule(static) default(shared) private(c)
+      do c = 1, size(mass)
+        mass(c) = 0.0_wp
+      end do
+      !$omp end parallel do
+    end if
     do colour = 1, 2
       !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
       do b = colour, sp%nstrip, 2

@@ -32,7 +32,7 @@ module cpdi_schedule
     integer(ik) :: rhi = -1                  !! highest row of any particle (0-based)
     integer(ik), allocatable :: perm(:)      !! particles ordered strip by strip (n)
     integer(ik), allocatable :: start(:)     !! first position of each strip in perm (nrow + 2)
-    integer(ik), allocatable :: next(:)      !! fill pointers of the counting sort (nrow + 2)
+    integer(ik), allocatable :: next(:, :)   !! per strip and block: count, then fill pointer (nrow + 1, NCHUNK)
   end type strips_t
 
   public :: strips_alloc, strips_build, chunk_range
@@ -54,7 +54,7 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr
     if (allocated(sp%perm)) deallocate (sp%perm, sp%start, sp%next)
-    allocate (sp%perm(n), sp%start(nrow + 2), sp%next(nrow + 2), stat=ierr)
+    allocate (sp%perm(n), sp%start(nrow + 2), sp%next(nrow + 1, NCHUNK), stat=ierr)
     if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate the particle ordering; use fewer particles')
   end subroutine strips_alloc
 
@@ -63,32 +63,73 @@ contains
     !! span rows high (span: tallest stencil, last minus first node row). A strip b then
     !! reaches rows below (b + 1) span + span, short of strip b + 2: same-colour strips
     !! touch disjoint nodes. Also records the lowest and highest row (rlo, rhi).
+    !! A stable counting sort over the fixed particle blocks (OpenMP): each block counts
+    !! its particles per strip, the offsets follow strip by strip and, within a strip,
+    !! block by block, and each block fills its positions in index order. perm is the one
+    !! of a serial stable sort, at any thread count.
     type(strips_t), intent(inout) :: sp
     integer(ik), intent(in) :: row(:)
     integer(ik), intent(in) :: span
-    integer(ik) :: ip, b, ncap
+    integer(ik) :: b, c, lo, hi, ncap, nstrip, rlo, rhi, pos, cnt, width
     ncap = size(sp%start) - 1
-    sp%width = max(span, 1)
-    sp%nstrip = 0
-    sp%start = 0
-    sp%rlo = huge(1_ik)
-    sp%rhi = -1
-    do ip = 1, size(row)
-      sp%rlo = min(sp%rlo, row(ip))
-      sp%rhi = max(sp%rhi, row(ip))
-      b = min(row(ip)/sp%width + 1, ncap)
-      sp%start(b + 1) = sp%start(b + 1) + 1
-      sp%nstrip = max(sp%nstrip, b)
+    width = max(span, 1)
+    sp%width = width
+    nstrip = 0
+    rlo = huge(1_ik)
+    rhi = -1
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) &
+    !$omp reduction(max:nstrip, rhi) reduction(min:rlo)
+    do c = 1, NCHUNK
+      call chunk_range(c, size(row, kind=ik), lo, hi)
+      call count_block(lo, hi, row, width, ncap, sp%next(:, c), nstrip, rlo, rhi)
     end do
-    sp%start(1) = 1
-    do b = 1, sp%nstrip
-      sp%start(b + 1) = sp%start(b + 1) + sp%start(b)
+    !$omp end parallel do
+    sp%nstrip = nstrip
+    sp%rlo = rlo
+    sp%rhi = rhi
+    pos = 1
+    do b = 1, nstrip
+      sp%start(b) = pos
+      do c = 1, NCHUNK
+        cnt = sp%next(b, c)
+        sp%next(b, c) = pos
+        pos = pos + cnt
+      end do
     end do
-    sp%next(1:sp%nstrip) = sp%start(1:sp%nstrip)
-    do ip = 1, size(row)
-      b = min(row(ip)/sp%width + 1, ncap)
-      sp%perm(sp%next(b)) = ip
-      sp%next(b) = sp%next(b) + 1
+    sp%start(nstrip + 1) = pos
+    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    do c = 1, NCHUNK
+      call chunk_range(c, size(row, kind=ik), lo, hi)
+      call fill_block(lo, hi, row, width, ncap, sp%next(:, c), sp%perm)
     end do
+    !$omp end parallel do
   end subroutine strips_build
+
+  pure subroutine count_block(lo, hi, row, width, ncap, cnt, nstrip, rlo, rhi)
+    !! Particles lo..hi per strip (cnt), and the running highest strip and row range.
+    integer(ik), intent(in) :: lo, hi, row(*), width, ncap
+    integer(ik), intent(out) :: cnt(ncap)
+    integer(ik), intent(inout) :: nstrip, rlo, rhi
+    integer(ik) :: ip, b
+    cnt = 0
+    do ip = lo, hi
+      rlo = min(rlo, row(ip))
+      rhi = max(rhi, row(ip))
+      b = min(row(ip)/width + 1, ncap)
+      cnt(b) = cnt(b) + 1
+      nstrip = max(nstrip, b)
+    end do
+  end subroutine count_block
+
+  pure subroutine fill_block(lo, hi, row, width, ncap, next, perm)
+    !! Particles lo..hi into perm at their strips' fill pointers next, in index order.
+    integer(ik), intent(in) :: lo, hi, row(*), width, ncap
+    integer(ik), intent(inout) :: next(ncap), perm(*)
+    integer(ik) :: ip, b
+    do ip = lo, hi
+      b = min(row(ip)/width + 1, ncap)
+      perm(next(b)) = ip
+      next(b) = next(b) + 1
+    end do
+  end subroutine fill_block
 end module cpdi_schedule
