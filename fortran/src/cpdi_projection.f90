@@ -207,7 +207,7 @@ contains
     integer(ik) :: c, lo, hi, span
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
     span = 1
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) reduction(max:span)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) reduction(max:span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, span)
@@ -340,7 +340,7 @@ contains
       call scatter_cell(pr, sp, p, mask, val, pr%rhs, pr%hd)
       pr%massed = .true.
     end if
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       call gather_block(lo, hi, pr%nq, pr%qc, mask, pr%rhs, pr%hd, val)
@@ -545,7 +545,7 @@ contains
       call st%set(CPDI_ERR_LAPACK, trim(buf))
       return
     end if
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       do ip = lo, hi

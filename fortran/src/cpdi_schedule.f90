@@ -5,7 +5,10 @@ module cpdi_schedule
   !! * **Chunks** (gathers and reductions). Particles are cut into `NCHUNK` fixed blocks
   !!   of consecutive indices, whatever the thread count. A reduction (energy, momentum)
   !!   sums each block in index order into its own slot, and the slots are then added in
-  !!   block order, serially. The error scan takes the lowest failing particle.
+  !!   block order, serially. The error scan takes the lowest failing particle. Blocks are
+  !!   handed to threads dynamically (`schedule(dynamic, 1)`): a block's work and sums do
+  !!   not depend on which thread runs it, and a thread on a slowed core (a vCPU shared
+  !!   with other work) takes fewer blocks instead of holding the other at every barrier.
   !! * **Strips** (scatters to the grid). Particles are binned by the lowest node row of
   !!   their stencil into horizontal strips `width` node rows high, with width at least
   !!   the tallest stencil's span (last minus first row). Two strips of the same parity then touch disjoint nodes,
@@ -77,7 +80,7 @@ contains
     nstrip = 0
     rlo = huge(1_ik)
     rhi = -1
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) &
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) &
     !$omp reduction(max:nstrip, rhi) reduction(min:rlo)
     do c = 1, NCHUNK
       call chunk_range(c, size(row, kind=ik), lo, hi)
@@ -97,7 +100,7 @@ contains
       end do
     end do
     sp%start(nstrip + 1) = pos
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, size(row, kind=ik), lo, hi)
       call fill_block(lo, hi, row, width, ncap, sp%next(:, c), sp%perm)

@@ -487,7 +487,7 @@ contains
     cbad = 0
     cfail = SHAPE_FAIL_NONE
     cnov = 0
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, &
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, &
     !$omp bspan, merged) reduction(max:span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
@@ -559,7 +559,7 @@ contains
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
       return
     end if
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
     do c = 1, NCHUNK
       if (cnov(c) == 0) cycle
       call chunk_range(c, p%n, lo, hi)

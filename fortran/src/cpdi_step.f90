@@ -567,7 +567,7 @@ contains
 
     musl = s%opt%update == UPDATE_MUSL
     simple = s%g%nf == 1 .and. .not. s%any_rigid
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (simple) then
@@ -853,7 +853,7 @@ contains
     do f = 1, s%g%nf
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
     end do
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, f)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, f)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (s%g%nf == 1 .and. .not. s%any_rigid) then
@@ -901,7 +901,7 @@ contains
     integer(ik) :: c, lo, hi, ip
     character(len=300) :: buf
 
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       call deformation_block(s, dt, lo, hi, s%cbad(c), s%cval(c))
@@ -987,7 +987,7 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: c, lo, hi, ip
     real(wp) :: jn
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, jn)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, jn)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
@@ -1050,7 +1050,7 @@ contains
 
     smax = 0.0_wp
     vdt = huge(1.0_wp)
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi) reduction(max:smax) reduction(min:vdt)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) reduction(max:smax) reduction(min:vdt)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       call stress_block(s, lo, hi, s%red(:, c), smax, vdt, s%cbad(c))
@@ -1130,7 +1130,7 @@ contains
     real(wp) :: dm
     call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
     if (.not. st%ok()) return
-    !$omp parallel do schedule(static) default(shared) private(c, lo, hi, ip, dm)
+    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, dm)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
