@@ -88,8 +88,9 @@ def main(quick: bool = False, only: list[str] | None = None, out: Path | None = 
     names = CHECKS if not only else only
     unknown = [n for n in names if n not in CHECKS + EXPERIMENTAL]
     if unknown:
-        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)} "
-              f"(experimental: {', '.join(EXPERIMENTAL)})", file=sys.stderr)
+        extra = f" (experimental: {', '.join(EXPERIMENTAL)})" if EXPERIMENTAL else ""
+        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)}{extra}",
+              file=sys.stderr)
         return 2
     if regen_gold:
         if only:

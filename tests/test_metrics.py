@@ -244,3 +244,36 @@ def test_convergence_table() -> None:
     assert lines[3] == "| 0.05 | 1.000e-02 | 2.00 |"
     assert lines[4] == "| 0.025 | 2.500e-03 | 2.00 |"
     assert len(lines) == 5
+
+
+# --------------------------------------------------------------------------- occupied water volume
+
+
+def _water_layer(width: float, depth: float, d: float):
+    xs, ys = np.meshgrid(np.arange(d / 2, width, d), np.arange(d / 2, depth, d))
+    x = np.column_stack([xs.ravel(), ys.ravel()])
+    r = np.tile([d / 2, 0.0, 0.0, d / 2], (len(x), 1))
+    return x, r, np.full(len(x), d * d)
+
+
+def test_water_volume_loss_is_zero_for_a_tiling_layer_and_sees_a_collapse() -> None:
+    from harness.checks.sinking_block import water_volume_loss
+    x, r, vol = _water_layer(1.0, 0.4, 0.025)
+    water, block = np.ones(len(x), bool), np.zeros(len(x), bool)
+    assert water_volume_loss(x, r, vol, water, block, 0.05, 1.0) == pytest.approx(0.0, abs=1e-12)
+    # positions packed 10 % closer vertically, volumes kept: the surface drops, 10 % is lost
+    xc = x * [1.0, 0.9]
+    rc = r * [1.0, 0.9, 1.0, 0.9]
+    assert water_volume_loss(xc, rc, vol, water, block, 0.05, 1.0) == pytest.approx(0.1, abs=2e-3)
+    # a block on the floor of one column lifts that column's water by its height; its area is
+    # not water, so nothing is lost
+    col = (x[:, 0] / 0.025).astype(int) == 20
+    xb = np.vstack([x + np.where(col, 0.025, 0.0)[:, None] * [0.0, 1.0], [[20.5 * 0.025, 0.0125]]])
+    rb = np.vstack([r, [[0.0125, 0.0, 0.0, 0.0125]]])
+    vb = np.append(vol, 0.025**2)
+    wb = np.append(water, False)
+    assert water_volume_loss(xb, rb, vb, wb, ~wb, 0.025, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert water_volume_loss(xb[:-1], rb[:-1], vb[:-1], wb[:-1], ~wb[:-1], 0.025, 1.0) < -1e-3  # block ignored: a gain
+    # a block above the water is not subtracted
+    xa = np.vstack([x, [[0.5, 0.6]]])
+    assert water_volume_loss(xa, rb, vb, wb, ~wb, 0.025, 1.0) == pytest.approx(0.0, abs=1e-12)
