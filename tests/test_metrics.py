@@ -260,11 +260,11 @@ def test_water_volume_loss_is_zero_for_a_tiling_layer_and_sees_a_collapse() -> N
     from harness.checks.sinking_block import water_volume_loss
     x, r, vol = _water_layer(1.0, 0.4, 0.025)
     water, block = np.ones(len(x), bool), np.zeros(len(x), bool)
-    assert water_volume_loss(x, r, vol, water, block, 0.05, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert water_volume_loss(x, r, vol, water, block, 0.05, 0.0, 1.0) == pytest.approx(0.0, abs=1e-12)
     # positions packed 10 % closer vertically, volumes kept: the surface drops, 10 % is lost
     xc = x * [1.0, 0.9]
     rc = r * [1.0, 0.9, 1.0, 0.9]
-    assert water_volume_loss(xc, rc, vol, water, block, 0.05, 1.0) == pytest.approx(0.1, abs=2e-3)
+    assert water_volume_loss(xc, rc, vol, water, block, 0.05, 0.0, 1.0) == pytest.approx(0.1, abs=2e-3)
     # a block on the floor of one column lifts that column's water by its height; its area is
     # not water, so nothing is lost
     col = (x[:, 0] / 0.025).astype(int) == 20
@@ -272,8 +272,11 @@ def test_water_volume_loss_is_zero_for_a_tiling_layer_and_sees_a_collapse() -> N
     rb = np.vstack([r, [[0.0125, 0.0, 0.0, 0.0125]]])
     vb = np.append(vol, 0.025**2)
     wb = np.append(water, False)
-    assert water_volume_loss(xb, rb, vb, wb, ~wb, 0.025, 1.0) == pytest.approx(0.0, abs=1e-12)
-    assert water_volume_loss(xb[:-1], rb[:-1], vb[:-1], wb[:-1], ~wb[:-1], 0.025, 1.0) < -1e-3  # block ignored: a gain
+    assert water_volume_loss(xb, rb, vb, wb, ~wb, 0.025, 0.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+    # with the block left out, its column counts as water: a gain
+    assert water_volume_loss(xb[:-1], rb[:-1], vb[:-1], wb[:-1], ~wb[:-1], 0.025, 0.0, 1.0) < -1e-3
+    # the columns follow the grid's origin: the same layer shifted with it loses nothing
+    assert water_volume_loss(x + [3.0, 0.0], r, vol, water, block, 0.05, 3.0, 1.0) == pytest.approx(0.0, abs=1e-12)
     # a block above the water is not subtracted
     xa = np.vstack([x, [[0.5, 0.6]]])
-    assert water_volume_loss(xa, rb, vb, wb, ~wb, 0.025, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert water_volume_loss(xa, rb, vb, wb, ~wb, 0.025, 0.0, 1.0) == pytest.approx(0.0, abs=1e-12)

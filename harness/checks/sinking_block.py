@@ -16,9 +16,9 @@ with the volume constraint, so the block falls freely until it reaches the water
 - mass_error: relative change of the total mass (particles carry fixed masses).
 - water_volume_loss: 1 - (area the water occupies) / (sum of its particle volumes J V0) at
   the end, at most 2 %. The occupied area is the tank width times the mean height of the
-  water's top (column by column, one cell wide) less the part of the block below it. Particles whose
-  positions pack closer than their volumes allow (the projection's sub-cell modes) lose
-  occupied volume while J V0 stays: the free surface drops.
+  water's top (column by column, one cell wide) less the part of the block below it.
+  Particles whose positions pack closer than their volumes allow (the projection's sub-cell
+  modes) lose occupied volume while J V0 stays: the free surface drops.
 - energy_excess: kinetic + potential (datum: the floor) + strain + viscous and frictional
   dissipation never exceeds its initial value by more than 1 % of it.
 """
@@ -52,12 +52,12 @@ def impact_velocity(t, bottom, vy) -> float:
     return float(np.sqrt(vy[k] ** 2 + 2 * G * max(bottom[k] - SURFACE, 0.0)))
 
 
-def water_volume_loss(x, r, vol, water, block, h: float, width: float) -> float:
+def water_volume_loss(x, r, vol, water, block, h: float, x0: float, width: float) -> float:
     """1 - occupied / sum(J V0) for the water: the tops of one-cell-wide columns (particle
     centre + half its domain's vertical extent), less the part of the block below them."""
     half_y = np.abs(r[:, 1]) + np.abs(r[:, 3])  # r holds the domain's half-vectors
     ncol = round(width / h)
-    col = np.clip((x[:, 0] / h).astype(int), 0, ncol - 1)
+    col = np.clip(((x[:, 0] - x0) / h).astype(int), 0, ncol - 1)
     tops = np.zeros(ncol)
     np.maximum.at(tops, col[water], x[water, 1] + half_y[water])
     below = np.clip((tops[col[block]] - (x[block, 1] - half_y[block])) / (2.0 * half_y[block]), 0.0, 1.0)
@@ -87,7 +87,7 @@ def run(ctx: CheckContext) -> CheckResult:
     fin, mat = r.final, r.parts.mat
     block = mat == [m["name"] for m in case["materials"]].index("block")
     res.metrics["water_volume_loss"] = water_volume_loss(fin["x"], fin["r"], fin["vol"], ~block, block, h,
-                                                         case["grid"]["size"][0])
+                                                         case["grid"]["origin"][0], case["grid"]["size"][0])
     res.gates += [Gate.at_most("impact_velocity_error", res.metrics["impact_velocity_error"], 0.01),
                   Gate.at_most("block_final_y", abs(res.metrics["block_final_y"]), 0.5 * h, "|bottom|, half a cell"),
                   Gate.at_most("block_rest_y_max", res.metrics["block_rest_y_max"], 0.5 * h,
