@@ -119,6 +119,21 @@ SCHEMA: dict[str, Key] = {
         "flip": Key("float", "FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)", default=1.0,
                     check=in_range(0.0, 1.0)),
         "max_steps": Key("int", "abort after this many steps", default=50_000_000, check=positive),
+        "max_estimated_steps": Key("float", "refuse a run whose first time step forecasts more steps than this to "
+                                            "t_end (a hopeless run); raise it to run anyway", default=1.0e8,
+                                   check=positive),
+        "fluid": Key("choice", "water model: weakly_compressible (the paper's explicit model, p from K ln J; "
+                               "time step from the speed of sound) or incompressible (pressure projection on a "
+                               "staggered grid; time step from the flow; water-only cases for now)",
+                     choices=("weakly_compressible", "incompressible"), default="weakly_compressible"),
+        "transfer": Key("choice", "particle-grid velocity transfer: flip (FLIP/PIC blend set by flip) or apic "
+                                  "(affine PIC; incompressible only)", choices=("flip", "apic"), default="flip"),
+        "cg_tolerance": Key("float", "incompressible: relative residual of the pressure solve", default=1e-8,
+                            check=in_range(0.0, 1.0, lo_open=True, hi_open=True)),
+        "cg_max_iterations": Key("int", "incompressible: CG iteration limit (0: 4 sqrt(cells) + 200)", default=0,
+                                 check=nonneg),
+        "volume_correction": Key("float", "incompressible: an over-filled cell gets div v = beta (fill - 1) / dt",
+                                 default=0.5, check=in_range(0.0, 2.0)),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
@@ -301,6 +316,8 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
     for i, m in enumerate(mats):
         m.setdefault("projection", m["model"] == "newtonian_fluid")
         for need in MODEL_NEEDS[m["model"]]:
+            if need == "bulk_modulus" and data["solver"]["fluid"] == "incompressible":
+                continue  # incompressible water has no bulk modulus
             if need not in m:
                 raise CaseError(f"materials[{i}] ('{m['name']}', model {m['model']}) needs '{need}' "
                                 f"({MATERIAL[need].doc}, {MATERIAL[need].unit or '-'})")

@@ -37,7 +37,8 @@ from harness.seeding import ParticleSet, seed
 from harness.solver import CpdiError, Simulation, pressure
 
 SERIES_BASE = ["t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y", "gravity_work",
-               "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt"]
+               "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt", "cg_iterations",
+               "cg_residual"]
 
 
 STOP_LATENCY_S = 0.2  # wall time per solver call while a stop request is watched
@@ -99,7 +100,10 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     ncell = [round(g["size"][0] / h), round(g["size"][1] / h)]
     sim = Simulation()
     sim.set_grid(g["origin"], ncell, h, g["walls"])
-    sim.set_materials(case["materials"])
+    mats = case["materials"]
+    if s["fluid"] == "incompressible":  # incompressible water has no bulk modulus; the solver's check wants one
+        mats = [{**m, "bulk_modulus": m.get("bulk_modulus", 1.0)} for m in mats]
+    sim.set_materials(mats)
     sim.set_particles(parts.x, parts.v, parts.mass, parts.vol, parts.r, parts.mat)
     contact = case["contact"]
     sim.set_bodies(parts.group, contact=contact["enabled"], friction=contact["friction"],
@@ -107,7 +111,9 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     sim.set_options(shape=s["shape"], update=s["update"], projection=s["projection"],
                     kinematics=s["kinematics"], domain_scaling=s["domain_scaling"], dt=s.get("dt"),
                     cfl=s["cfl"], gravity=s["gravity"], damping=s["damping"], flip=s["flip"],
-                    projection_stabilization=s["projection_stabilization"])
+                    projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
+                    transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
+                    cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"])
     return sim, parts
 
 

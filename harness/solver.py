@@ -22,13 +22,15 @@ WALL_SIDES = ("left", "right", "bottom", "top")
 MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4}
 KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
+FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
+TRANSFERS = {"flip": 0, "apic": 1}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
-              "viscous_dissipation")
-TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection")
+              "viscous_dissipation", "cg_iterations", "cg_residual", "cg_iterations_total")
+TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection", "pressure_solve")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
-               7: "cfl", 8: "lapack", 9: "handle", 10: "alloc"}
+               7: "cfl", 8: "lapack", 9: "handle", 10: "alloc", 11: "solve"}
 
 
 class CpdiError(RuntimeError):
@@ -163,6 +165,7 @@ class Simulation:
             raise CpdiError(1, f"ncell must be two whole numbers, got {ncell!r}")
         _call("cpdi_set_grid", self._handle, _f64(origin, (2,), "origin"), nc.astype(np.int32),
               float(h), np.asarray(codes, dtype=np.int32))
+        self._ncell = (int(nc[0]), int(nc[1]))
 
     def set_materials(self, materials: Sequence[Mapping]) -> None:
         """Materials as dicts: model plus density, youngs_modulus, poisson_ratio,
@@ -206,8 +209,13 @@ class Simulation:
     def set_options(self, *, shape: str = "cpdi", update: str = "musl", projection: str = "none",
                     kinematics: str = "log", domain_scaling: bool = False, dt: float | None = None,
                     cfl: float = 0.3, gravity: Sequence[float] = (0.0, 0.0), damping: float = 0.0,
-                    flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0) -> None:
-        """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it."""
+                    flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
+                    fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
+                    cg_max_iterations: int = 0, volume_correction: float = 0.5) -> None:
+        """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
+        ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
+        ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG
+        settings and ``volume_correction`` belong to it)."""
         table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
                  ("kinematics", kinematics, KINEMATICS))
         codes = []
@@ -220,7 +228,18 @@ class Simulation:
         ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit,
                          projection_stabilization], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
+        for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS)):
+            if value not in allowed:
+                raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
+            _call("cpdi_set_option", self._handle, key, float(allowed[value]))
+        if transfer == "apic" and fluid != "incompressible":
+            raise CpdiError(1, "transfer = 'apic' is available with fluid = 'incompressible' only; "
+                               "use transfer = 'flip' (with flip) for the weakly compressible model")
+        for key, value in (("cg_tolerance", cg_tolerance), ("cg_max_iterations", cg_max_iterations),
+                           ("volume_correction", volume_correction)):
+            _call("cpdi_set_option", self._handle, key, float(value))
         self._shape = shape
+        self._fluid = fluid
 
     def set_bodies(self, body, contact: bool = False, friction: float = 0.0, fullness: float = 0.9) -> None:
         """Body index (n,) 0-based of every particle; with contact each body gets its own
@@ -284,6 +303,19 @@ class Simulation:
         if code is None:
             raise CpdiError(1, f"projection mode {mode!r} is not available; use 'cell' or 'nodal'")
         return _call("cpdi_project", self._handle, code, m, val)
+
+    def grid_pressure(self) -> dict[str, np.ndarray]:
+        """Cell fields of an incompressible run after its last step, each (nx, ny) over the
+        physical cells: ``pressure`` [Pa] (0 outside the water), ``fill`` (particle volume
+        per cell area) and ``water`` (1 where a water particle lies in the cell)."""
+        nx, ny = self._ncell
+        p, fill, cell = _call("cpdi_grid_pressure", self._handle, nx, ny)
+        return {"pressure": p, "fill": fill, "water": cell}
+
+    def transfer_cycle(self) -> None:
+        """Incompressible runs only: particle-to-grid transfer to the face lattices and back,
+        nothing else (PIC, or APIC with transfer = 'apic')."""
+        _call("cpdi_transfer_cycle", self._handle)
 
     def shape_functions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Weights of the current configuration: node index (0-based), S, dS/dx, dS/dy,

@@ -7,7 +7,7 @@ module cpdi_api
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
-                         CPDI_ERR_LAPACK
+                         CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
   use cpdi_shape, only: shape_compute, shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
@@ -16,6 +16,9 @@ module cpdi_api
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, &
                        NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
+  use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
+                           CELL_SOLID
   implicit none
   private
 
@@ -33,6 +36,8 @@ module cpdi_api
             cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
+  ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
+  public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
   integer, parameter :: NPSTATE = 25                !! rows per particle of the full state
@@ -502,6 +507,193 @@ contains
     if (st%ok()) timers = s%timers
     call finish(st, ierr, msg)
   end subroutine cpdi_get_timers
+
+  subroutine cpdi_set_option(handle, name, value, ierr, msg)
+    !! A solver option by name (options added after the positional iopt/ropt of
+    !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
+    !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
+    !! volume_correction (beta of the divergence target beta (fill - 1) / dt).
+    integer(c_int), intent(in) :: handle
+    character(len=*), intent(in) :: name
+    real(c_double), intent(in) :: value
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. (abs(value) <= huge(value))) call st%set(CPDI_ERR_INPUT, trim(name)//' must be finite')
+    if (.not. st%ok()) then
+      call finish(st, ierr, msg)
+      return
+    end if
+    select case (trim(name))
+    case ('fluid')
+      if (value /= 0.0_wp .and. value /= 1.0_wp) then
+        call st%set(CPDI_ERR_INPUT, 'fluid must be 0 (weakly_compressible) or 1 (incompressible)')
+      else
+        s%opt%fluid = nint(value, ik)
+      end if
+    case ('transfer')
+      if (value /= 0.0_wp .and. value /= 1.0_wp) then
+        call st%set(CPDI_ERR_INPUT, 'transfer must be 0 (flip) or 1 (apic)')
+      else
+        s%inc%transfer = nint(value, ik)
+      end if
+    case ('cg_tolerance')
+      if (.not. (value > 0.0_wp .and. value < 1.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
+      else
+        s%inc%tol = value
+      end if
+    case ('cg_max_iterations')
+      if (.not. (value >= 0.0_wp .and. value < 1.0e9_wp) .or. value /= aint(value)) then
+        call st%set(CPDI_ERR_INPUT, 'cg_max_iterations must be a whole number >= 0 (0: automatic)')
+      else
+        s%inc%maxit = nint(value, ik)
+      end if
+    case ('volume_correction')
+      if (.not. (value >= 0.0_wp .and. value <= 2.0_wp)) then
+        call st%set(CPDI_ERR_INPUT, 'volume_correction must lie in [0, 2]; 0.1-1 is typical')
+      else
+        s%inc%beta = value
+      end if
+    case default
+      call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
+                  'cg_tolerance, cg_max_iterations or volume_correction')
+    end select
+    if (st%ok()) s%smax = -1.0_wp
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_option
+
+  subroutine cpdi_grid_pressure(handle, nx, ny, p, fill, cell, ierr, msg)
+    !! Pressure [Pa] (0 outside the water), fill fraction and kind (0 air, 1 water) of the
+    !! physical cells after the last step of an incompressible run, (nx, ny) = cells.
+    integer(c_int), intent(in) :: handle, nx, ny
+    real(c_double), intent(out) :: p(nx, ny), fill(nx, ny)
+    integer(c_int), intent(out) :: cell(nx, ny)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: j, k0
+    p = 0.0_wp
+    fill = 0.0_wp
+    cell = 0
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
+      call st%set(CPDI_ERR_STATE, 'no pressure grid: it exists once an incompressible run has been prepared')
+    if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
+      call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    if (st%ok()) then
+      do j = 1, ny
+        k0 = s%inc%mc%lo(1) + (s%inc%mc%lo(2) + j - 2)*s%inc%mc%nn(1)
+        p(:, j) = s%inc%mc%p(k0:k0 + nx - 1)
+        fill(:, j) = s%inc%mc%fill(k0:k0 + nx - 1)
+        cell(:, j) = merge(1, 0, s%inc%mc%cell(k0:k0 + nx - 1) == CELL_FLUID)
+      end do
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_grid_pressure
+
+  subroutine cpdi_transfer_cycle(handle, ierr, msg)
+    !! Incompressible runs: particle-to-grid transfer to the face lattices and back, nothing
+    !! else (PIC, or APIC with transfer = apic). A test of what the transfer conserves.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok() .and. s%opt%fluid /= FLUID_INCOMPRESSIBLE) &
+      call st%set(CPDI_ERR_STATE, 'the face-lattice transfer belongs to fluid = incompressible; set it first')
+    if (st%ok()) call sim_prepare(s, st)
+    if (st%ok()) call incomp_transfer_cycle(s%inc, s%g, s%p, st)
+    call finish(st, ierr, msg)
+  end subroutine cpdi_transfer_cycle
+
+  subroutine test_mac(mc, nx, ny, cell, fill, h, st)
+    !! A stand-alone staggered grid of nx x ny cells whose outer ring is boundary (its
+    !! kinds given in cell); for the tests of the pressure operator and projection.
+    type(mac_t), intent(inout) :: mc
+    integer(c_int), intent(in) :: nx, ny
+    integer(c_int), intent(in) :: cell(nx*ny)
+    real(c_double), intent(in) :: fill(nx*ny), h
+    type(status_t), intent(inout) :: st
+    if (nx < 3 .or. ny < 3 .or. .not. (h > 0.0_wp)) then
+      call st%set(CPDI_ERR_INPUT, 'the test grid needs nx, ny >= 3 and h > 0')
+      return
+    end if
+    if (any(cell < 0) .or. any(cell > 2)) then
+      call st%set(CPDI_ERR_INPUT, 'cell kinds are 0 (air), 1 (water), 2 (wall)')
+      return
+    end if
+    call mac_alloc(mc, [nx, ny], [2, 2], [nx - 1, ny - 1], h, st)
+    if (.not. st%ok()) return
+    mc%cell = cell
+    mc%fill = fill
+  end subroutine test_mac
+
+  subroutine cpdi_poisson_apply(nx, ny, cell, fill, x, y, ierr, msg)
+    !! y = A x: the pressure operator (5-point, ghost-fluid surface) on a test grid (h = 1).
+    integer(c_int), intent(in) :: nx, ny
+    integer(c_int), intent(in) :: cell(nx*ny)
+    real(c_double), intent(in) :: fill(nx*ny), x(nx*ny)
+    real(c_double), intent(out) :: y(nx*ny)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(mac_t) :: mc
+    y = 0.0_wp
+    call test_mac(mc, nx, ny, cell, fill, 1.0_wp, st)
+    if (st%ok()) then
+      call mac_assemble(mc, 1.0_wp, 1.0_wp, 0.0_wp)
+      call mac_apply(mc, x, y)
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_poisson_apply
+
+  subroutine cpdi_poisson_project(nx, ny, cell, fill, u, v, dt, rho, h, beta, tol, maxit, p, uo, vo, iters, &
+                                  resid, ierr, msg)
+    !! Project the face field (u, v) of a test grid: solve for p, return the projected
+    !! faces uo, vo (unchanged where no water is adjacent), CG iterations and residual.
+    integer(c_int), intent(in) :: nx, ny, maxit
+    integer(c_int), intent(in) :: cell(nx*ny)
+    real(c_double), intent(in) :: fill(nx*ny), u(nx*ny), v(nx*ny), dt, rho, h, beta, tol
+    real(c_double), intent(out) :: p(nx*ny), uo(nx*ny), vo(nx*ny), resid
+    integer(c_int), intent(out) :: iters
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(mac_t) :: mc
+    logical :: converged
+    character(len=200) :: buf
+    p = 0.0_wp
+    uo = u
+    vo = v
+    iters = 0
+    resid = 0.0_wp
+    call test_mac(mc, nx, ny, cell, fill, h, st)
+    if (st%ok()) then
+      mc%u = u
+      mc%v = v
+      call mac_walls(mc)
+      call mac_assemble(mc, dt, rho, beta)
+      call mac_solve(mc, tol, maxit, converged)
+      iters = mc%iters
+      resid = mc%resid
+      if (.not. converged) then
+        write (buf, '(a,es10.3,a,i0,a)') 'the pressure solve did not converge (relative residual ', mc%resid, &
+          ' after ', mc%iters, ' CG iterations); raise maxit or tol'
+        call st%set(CPDI_ERR_SOLVE_CODE, trim(buf))
+      else
+        call mac_project(mc, dt, rho)
+        p = mc%p
+        uo = mc%u
+        vo = mc%v
+      end if
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_poisson_project
 
   subroutine cpdi_grid_info(handle, info, ierr, msg)
     !! info = [x of node (1,1), y of node (1,1), h, nodes in x, nodes in y, pad]

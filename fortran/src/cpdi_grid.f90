@@ -40,7 +40,7 @@ module cpdi_grid
     procedure :: node_x => grid_node_x
   end type grid_t
 
-  public :: grid_init, grid_fields, grid_apply_walls, inside_fraction
+  public :: grid_init, grid_fields, grid_apply_walls, inside_fraction, hold_on_walls
 
 contains
 
@@ -238,4 +238,24 @@ contains
       hat_part = 0.0_wp
     end if
   end function hat_part
+
+  pure subroutine hold_on_walls(x, xmin, xmax, closed, nclamp)
+    !! Particles are held on closed walls (the grid already stops their normal motion at the
+    !! wall nodes; this removes the residual drift of wide supports); nclamp counts them.
+    real(wp), intent(inout) :: x(2)
+    real(wp), intent(in) :: xmin(2), xmax(2)
+    logical, intent(in) :: closed(4)
+    integer(ik), intent(inout) :: nclamp
+    integer :: a
+    do a = 1, 2   ! closed = (left, right, bottom, top)
+      if (closed(2*a - 1) .and. x(a) < xmin(a)) then
+        x(a) = xmin(a)
+        nclamp = nclamp + 1
+      end if
+      if (closed(2*a) .and. x(a) > xmax(a)) then
+        x(a) = xmax(a)
+        nclamp = nclamp + 1
+      end if
+    end do
+  end subroutine hold_on_walls
 end module cpdi_grid

@@ -17,6 +17,7 @@ module cpdi_status
   integer(ik), parameter, public :: CPDI_ERR_LAPACK = 8    !! LAPACK reported failure
   integer(ik), parameter, public :: CPDI_ERR_HANDLE = 9    !! unknown simulation handle
   integer(ik), parameter, public :: CPDI_ERR_ALLOC = 10    !! allocation failed
+  integer(ik), parameter, public :: CPDI_ERR_SOLVE = 11    !! pressure solve did not converge
 
   integer, parameter, public :: MSG_LEN = 512              !! length of every message
 

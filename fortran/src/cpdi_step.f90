@@ -16,7 +16,7 @@ module cpdi_step
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
                          CPDI_ERR_OUTSIDE, CPDI_ERR_JACOBIAN, CPDI_ERR_DOMAIN, CPDI_ERR_CFL
-  use cpdi_grid, only: grid_t, grid_apply_walls, grid_fields, WALL_OPEN
+  use cpdi_grid, only: grid_t, grid_apply_walls, grid_fields, hold_on_walls, WALL_OPEN
   use cpdi_contact, only: contact_correct
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_GIMP, &
@@ -25,20 +25,24 @@ module cpdi_step
   use cpdi_materials, only: material_t, material_stresses, MAT_FLUID, KIN_LOG
   use cpdi_kinematics, only: det2, map_domains
   use cpdi_projection, only: projection_t, projection_alloc, projection_setup, projection_apply, PROJ_NONE
+  use cpdi_incompressible, only: incomp_t, incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, &
+                                 FLUID_WEAKLY_COMPRESSIBLE
   implicit none
   private
 
   integer(ik), parameter, public :: UPDATE_USL = 0
   integer(ik), parameter, public :: UPDATE_MUSL = 1
 
-  integer(ik), parameter, public :: NDIAG = 14
+  integer(ik), parameter, public :: NDIAG = 17
   !! diag: 1 t, 2 dt, 3 steps, 4 kinetic energy, 5 strain energy, 6-7 momentum,
   !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
   !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
-  !! 14 viscous dissipation
-  integer(ik), parameter, public :: NTIMER = 7
+  !! 14 viscous dissipation; incompressible water: 15 CG iterations and 16 relative
+  !! residual of the last pressure solve, 17 CG iterations of all steps
+  integer(ik), parameter, public :: NTIMER = 8
   !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
-  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress)
+  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
+  !! 8 pressure solve (incompressible water)
 
   type, public :: options_t
     integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
@@ -47,6 +51,7 @@ module cpdi_step
     integer(ik) :: kinematics = KIN_LOG      !! KIN_LOG or KIN_SMALL
     integer(ik) :: domain_scaling = 0        !! 1: Homel et al. (2016) domain scaling
     integer(ik) :: fixed_dt = 0              !! 1: use dt below instead of the CFL step
+    integer(ik) :: fluid = FLUID_WEAKLY_COMPRESSIBLE !! water model: explicit weakly compressible or incompressible
     real(wp) :: cfl = 0.3_wp                 !! Courant number
     real(wp) :: gravity(2) = 0.0_wp          !! [m/s^2]
     real(wp) :: damping = 0.0_wp             !! Cundall local damping coefficient [-]
@@ -76,6 +81,7 @@ module cpdi_step
     real(wp) :: dt_last = 0.0_wp
     type(shape_t) :: sh
     type(projection_t) :: proj
+    type(incomp_t) :: inc                    !! incompressible water: settings and staggered grid
     logical, allocatable :: pmask(:)         !! per particle: takes part in the projection
     type(options_t) :: opt
     real(wp) :: t = 0.0_wp
@@ -131,6 +137,10 @@ contains
     end if
     call prepare_fields(s, st)
     if (.not. st%ok()) return
+    if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
+      call prepare_incompressible(s, st)
+      return
+    end if
     ! (Fortran does not short-circuit .or.: test allocation before asking for a size)
     realloc = .not. allocated(s%sh%idx)
     if (.not. realloc) realloc = s%sh%kind /= s%opt%shape .or. size(s%sh%w, 2) /= s%p%n
@@ -163,6 +173,28 @@ contains
       if (st%ok() .and. s%opt%projection /= PROJ_NONE) call project_mean_stress(s, st)
     end if
   end subroutine sim_prepare
+
+  subroutine prepare_incompressible(s, st)
+    !! The incompressible water model's checks and storage; signal speed of the state.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    if (s%contact) then
+      call st%set(CPDI_ERR_INPUT, 'contact is not available with fluid = "incompressible"; '// &
+                  'set [contact] enabled = false or use fluid = "weakly_compressible"')
+      return
+    end if
+    if (s%opt%projection /= PROJ_NONE) then
+      call st%set(CPDI_ERR_INPUT, 'the volumetric projection is for the weakly compressible model: '// &
+                  'incompressible water needs none; set [solver] projection = "none"')
+      return
+    end if
+    call incomp_prepare(s%inc, s%g, s%p, s%mats, s%opt%shape, s%opt%damping, st)
+    if (.not. st%ok()) return
+    s%diag(10) = sum(s%p%m)
+    if (s%smax < 0.0_wp) s%smax = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
+    s%visc_dt = huge(1.0_wp)
+    if (s%inc%visc > 0.0_wp) s%visc_dt = 0.25_wp*s%inc%rho*s%g%h**2/s%inc%visc
+  end subroutine prepare_incompressible
 
   subroutine prepare_fields(s, st)
     !! One velocity field, or one per contact group when contact is on. A field made only
@@ -246,6 +278,14 @@ contains
       return
     end if
     proj = s%opt%projection /= PROJ_NONE
+    if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
+      call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
+      if (.not. st%ok()) return
+      s%diag(11) = s%smax
+      s%dt_last = dt
+      call advance_clock(s, dt)
+      return
+    end if
 
     call tic(t0)
     call shape_compute(s%g, s%p, s%sh, bad, fail, st)
@@ -297,12 +337,19 @@ contains
       call toc(s, 7, t0)
       if (.not. st%ok()) return
     end if
+    call advance_clock(s, dt)
+  end subroutine sim_step
+
+  subroutine advance_clock(s, dt)
+    !! The clock and step counter after a step of dt.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
     s%t = s%t + dt
     s%steps = s%steps + 1
     s%diag(1) = s%t
     s%diag(2) = dt
     s%diag(3) = real(s%steps, wp)
-  end subroutine sim_step
+  end subroutine advance_clock
 
   subroutine node_range(s)
     !! The nodes a step has to clear and update: the node rows this step's stencils span,
@@ -709,26 +756,6 @@ contains
       end do
     end subroutine g2p_slots
   end subroutine g2p_block_simple
-
-  pure subroutine hold_on_walls(x, xmin, xmax, closed, nclamp)
-    !! Particles are held on closed walls (the grid already stops their normal motion at the
-    !! wall nodes; this removes the residual drift of wide supports); nclamp counts them.
-    real(wp), intent(inout) :: x(2)
-    real(wp), intent(in) :: xmin(2), xmax(2)
-    logical, intent(in) :: closed(4)
-    integer(ik), intent(inout) :: nclamp
-    integer :: a
-    do a = 1, 2   ! closed = (left, right, bottom, top)
-      if (closed(2*a - 1) .and. x(a) < xmin(a)) then
-        x(a) = xmin(a)
-        nclamp = nclamp + 1
-      end if
-      if (closed(2*a) .and. x(a) > xmax(a)) then
-        x(a) = xmax(a)
-        nclamp = nclamp + 1
-      end if
-    end do
-  end subroutine hold_on_walls
 
   subroutine vgrad_block(lo, hi, sh, vx, vy, l)
     !! Velocity gradient of particles lo..hi from one nodal velocity field (the same sums as

@@ -1,0 +1,493 @@
+!> Incompressible water: the semi-implicit (Chorin) step on the staggered grid.
+module cpdi_incompressible
+  !! The second water model (`fluid = incompressible`). One step, for a body of water:
+  !!
+  !! 1. particle-to-grid transfer of mass and momentum to the u and v face lattices, with
+  !!    the run's interpolation (linear, uGIMP or CPDI weights evaluated on the node lattice
+  !!    shifted by h/2), PIC/FLIP or APIC (Jiang et al. 2015: m v_i = sum w m (v_p + C_p (x_i - x_p)));
+  !! 2. explicit forces on the faces: gravity and body forces, viscosity (5-point Laplacian);
+  !! 3. the pressure projection (cpdi_pressure): cells with water, their fill fraction and a
+  !!    ghost-fluid free surface, MIC(0)-CG, u <- u - dt/rho grad p, extrapolation to the faces
+  !!    next to the water;
+  !! 4. grid-to-particle transfer (FLIP/PIC blend, or APIC's velocity and affine matrix
+  !!    C_p = sum_i v_i grad w_ip^T, exact for affine fields with these weights), advection
+  !!    with the grid velocity, and the particle pressure from the cell pressure.
+  !!
+  !! Water particles keep F = I and their initial volume, and so their CPDI domains: the
+  !! water is incompressible, and the grid velocity is divergence-free to the solver's
+  !! tolerance. The time step follows the flow (cpdi_step: h / (max|v| + sqrt(|g| h)) and the
+  !! viscous limit), not the speed of sound.
+  use, intrinsic :: iso_fortran_env, only: int64
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_SOLVE, &
+                         CPDI_ERR_NAN
+  use cpdi_grid, only: grid_t, hold_on_walls, WALL_OPEN, GRID_PAD
+  use cpdi_particles, only: particles_t
+  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
+  use cpdi_schedule, only: NCHUNK, chunk_range
+  use cpdi_materials, only: material_t, MAT_FLUID
+  use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
+                           mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR
+  implicit none
+  private
+
+  integer(ik), parameter, public :: FLUID_WEAKLY_COMPRESSIBLE = 0
+  integer(ik), parameter, public :: FLUID_INCOMPRESSIBLE = 1
+  integer(ik), parameter, public :: TRANSFER_FLIP = 0   !! FLIP/PIC blend (the run's flip fraction)
+  integer(ik), parameter, public :: TRANSFER_APIC = 1   !! affine particle-in-cell
+  integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
+
+  type, public :: incomp_t
+    !! Settings and work storage of the incompressible water model.
+    integer(ik) :: transfer = TRANSFER_FLIP
+    real(wp) :: beta = 0.5_wp          !! volume correction: target div v = beta (fill - 1) / dt
+    real(wp) :: tol = 1.0e-8_wp        !! CG relative residual
+    integer(ik) :: maxit = 0           !! CG iteration limit (0: 4 sqrt(cells) + 200)
+    real(wp) :: rho = 0.0_wp           !! water density [kg/m^3]
+    real(wp) :: visc = 0.0_wp          !! water viscosity [Pa s]
+    type(grid_t) :: gu, gv             !! u and v face lattices (geometry only)
+    type(shape_t) :: shu, shv          !! weights of every particle on them
+    type(mac_t) :: mc                  !! staggered fields and the pressure system
+    real(wp) :: red(8, NCHUNK) = 0.0_wp
+  end type incomp_t
+
+  public :: incomp_prepare, incomp_step, incomp_transfer_cycle
+
+contains
+
+  subroutine incomp_prepare(ic, g, p, mats, shape_kind, damping, st)
+    !! Check that the run is one the projection handles (water only, one density, no
+    !! damping), size the work storage and put the water at F = I, V = V0.
+    type(incomp_t), intent(inout) :: ic
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(inout) :: p
+    type(material_t), intent(in) :: mats(:)
+    integer(ik), intent(in) :: shape_kind
+    real(wp), intent(in) :: damping
+    type(status_t), intent(inout) :: st
+    integer(ik) :: m, first, lo(2), hi(2)
+    character(len=300) :: buf
+    logical :: used(size(mats)), realloc
+
+    used = .false.
+    used(p%mat) = .true.
+    first = 0
+    do m = 1, size(mats)
+      if (.not. used(m)) cycle
+      if (mats(m)%model /= MAT_FLUID) then
+        write (buf, '(a,i0,a)') 'material ', m, ' is not a newtonian_fluid: fluid = "incompressible" '// &
+          'handles water only (solids coupled to it are not built yet); use fluid = "weakly_compressible"'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+        return
+      end if
+      if (first == 0) then
+        first = m
+      else if (mats(m)%rho0 /= mats(first)%rho0 .or. mats(m)%visc /= mats(first)%visc) then
+        write (buf, '(a,i0,a,i0,a)') 'fluid materials ', first, ' and ', m, ' differ in density or viscosity: '// &
+          'fluid = "incompressible" solves for one water; give them the same values'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+        return
+      end if
+    end do
+    if (damping /= 0.0_wp) then
+      call st%set(CPDI_ERR_INPUT, 'damping is not available with fluid = "incompressible" (water at rest is '// &
+                  'exactly at rest without it); set [solver] damping = 0')
+      return
+    end if
+    ic%rho = mats(first)%rho0
+    ic%visc = mats(first)%visc
+    ic%gu = lattice(g, [0.0_wp, 0.5_wp])
+    ic%gv = lattice(g, [0.5_wp, 0.0_wp])
+    realloc = .not. allocated(ic%shu%idx)
+    if (.not. realloc) realloc = ic%shu%kind /= shape_kind .or. size(ic%shu%w, 2) /= p%n
+    if (realloc) then
+      call shape_alloc(ic%shu, shape_kind, p%n, st)
+      if (st%ok()) call shape_alloc(ic%shv, shape_kind, p%n, st)
+      if (.not. st%ok()) return
+    end if
+    lo = GRID_PAD + 1
+    hi = GRID_PAD + g%ncell
+    realloc = .not. allocated(ic%mc%cell)
+    if (.not. realloc) realloc = any(ic%mc%nn /= g%nn)
+    if (realloc) then
+      call mac_alloc(ic%mc, g%nn, lo, hi, g%h, st)
+      if (.not. st%ok()) return
+    end if
+    call mac_mark_outside(ic%mc, g%walls /= WALL_OPEN)
+    if (ic%maxit == 0) ic%maxit = int(4.0_wp*sqrt(real(product(g%ncell), wp))) + 200
+    p%F(1, :) = 1.0_wp
+    p%F(2, :) = 0.0_wp
+    p%F(3, :) = 0.0_wp
+    p%F(4, :) = 1.0_wp
+    p%vol = p%vol0
+    p%jbar = 1.0_wp
+    p%r = p%r0
+    p%psi = 0.0_wp
+  end subroutine incomp_prepare
+
+  pure function lattice(g, shift) result(gs)
+    !! The node lattice of g shifted by shift*h (geometry only: no nodal fields).
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: shift(2)
+    type(grid_t) :: gs
+    gs%origin = g%origin
+    gs%h = g%h
+    gs%gorig = g%gorig + shift*g%h
+    gs%ncell = g%ncell
+    gs%nn = g%nn
+    gs%nnodes = g%nnodes
+    gs%walls = g%walls
+    gs%wall_node = g%wall_node
+  end function lattice
+
+  subroutine weights(ic, p, steps, st)
+    !! Weights of every particle on both face lattices; a clear error if a particle left them.
+    type(incomp_t), intent(inout) :: ic
+    type(particles_t), intent(in) :: p
+    integer(int64), intent(in) :: steps
+    type(status_t), intent(inout) :: st
+    integer(ik) :: bad, fail, pass
+    character(len=300) :: buf
+    do pass = 1, 2
+      if (pass == 1) call shape_compute(ic%gu, p, ic%shu, bad, fail, st)
+      if (pass == 2) call shape_compute(ic%gv, p, ic%shv, bad, fail, st)
+      if (.not. st%ok()) return
+      if (bad == 0) cycle
+      if (fail == SHAPE_FAIL_INVERTED) then
+        write (buf, '(a,i0,a,i0,a)') 'step ', steps + 1, ': CPDI domain of particle ', bad, &
+          ' is inverted; check the particle domains'
+        call st%set(CPDI_ERR_DOMAIN, trim(buf))
+      else
+        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', steps + 1, ': particle ', bad, ' at (', p%x(:, bad), &
+          ') has left the grid; enlarge [grid] size or close the wall'
+        call st%set(CPDI_ERR_OUTSIDE, trim(buf))
+      end if
+      return
+    end do
+  end subroutine weights
+
+  subroutine p2g_faces(ic, p, g, dt, gravity, apic)
+    !! Face masses and momenta (u, v), the impulse of gravity and body forces (uo, vo),
+    !! the cells holding water and their fill fraction.
+    type(incomp_t), intent(inout) :: ic
+    type(particles_t), intent(in) :: p
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: dt, gravity(2)
+    logical, intent(in) :: apic
+    integer(ik) :: ip, a, k, i0, j0, i, j, n1
+    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av
+    associate (mc => ic%mc)
+      n1 = mc%nn(1)
+      mc%um = 0.0_wp
+      mc%vm = 0.0_wp
+      mc%u = 0.0_wp
+      mc%v = 0.0_wp
+      mc%uo = 0.0_wp
+      mc%vo = 0.0_wp
+      mc%fill = 0.0_wp
+      where (mc%cell == CELL_FLUID) mc%cell = CELL_AIR   ! walls stay
+      av = 1.0_wp/g%h**2
+      do ip = 1, p%n
+        mp = p%m(ip)
+        do a = 1, shape_count(ic%shu, ip)
+          call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
+          mom = p%v(1, ip)
+          if (apic) then
+            xk = ic%gu%node_x(k) - p%x(:, ip)
+            mom = mom + p%L(1, ip)*xk(1) + p%L(3, ip)*xk(2)
+          end if
+          mc%um(k) = mc%um(k) + w*mp
+          mc%u(k) = mc%u(k) + w*mp*mom
+          mc%uo(k) = mc%uo(k) + w*mp*dt*(gravity(1) + p%bf(1, ip))
+        end do
+        do a = 1, shape_count(ic%shv, ip)
+          call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
+          mom = p%v(2, ip)
+          if (apic) then
+            xk = ic%gv%node_x(k) - p%x(:, ip)
+            mom = mom + p%L(2, ip)*xk(1) + p%L(4, ip)*xk(2)
+          end if
+          mc%vm(k) = mc%vm(k) + w*mp
+          mc%v(k) = mc%v(k) + w*mp*mom
+          mc%vo(k) = mc%vo(k) + w*mp*dt*(gravity(2) + p%bf(2, ip))
+        end do
+        ! cell of the particle, and its volume spread bilinearly over the cell centres (indices
+        ! clamped to the physical cells: a wall mirrors the water beyond it)
+        s = (p%x(:, ip) - g%gorig)/g%h
+        i = int(s(1)) + 1
+        j = int(s(2)) + 1
+        if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2)) &
+          mc%cell(i + (j - 1)*n1) = CELL_FLUID
+        f = s - 0.5_wp
+        i0 = int(floor(f(1))) + 1
+        j0 = int(floor(f(2))) + 1
+        f = f - floor(f)
+        wx = [1.0_wp - f(1), f(1)]
+        wy = [1.0_wp - f(2), f(2)]
+        do j = 0, 1
+          do i = 0, 1
+            k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
+            mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*p%vol0(ip)*av
+          end do
+        end do
+      end do
+    end associate
+  end subroutine p2g_faces
+
+  subroutine face_velocities(mc, mtol)
+    !! Momenta to velocities: uo <- velocity before forces, u <- after forces.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(in) :: mtol
+    where (mc%um > mtol)
+      mc%u = mc%u/mc%um
+      mc%uo = mc%u + mc%uo/mc%um
+    elsewhere
+      mc%u = 0.0_wp
+      mc%uo = 0.0_wp
+    end where
+    where (mc%vm > mtol)
+      mc%v = mc%v/mc%vm
+      mc%vo = mc%v + mc%vo/mc%vm
+    elsewhere
+      mc%v = 0.0_wp
+      mc%vo = 0.0_wp
+    end where
+    call swap(mc%u, mc%uo)
+    call swap(mc%v, mc%vo)
+  contains
+    subroutine swap(a, b)
+      real(wp), intent(inout) :: a(:), b(:)
+      real(wp) :: t
+      integer :: i
+      do i = 1, size(a)
+        t = a(i)
+        a(i) = b(i)
+        b(i) = t
+      end do
+    end subroutine swap
+  end subroutine face_velocities
+
+  subroutine viscosity(mc, nu_dt, mtol)
+    !! u <- u + dt nu Laplacian(u) on faces whose four lattice neighbours carry mass
+    !! (explicit; the step respects the viscous limit). pe and b serve as scratch.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(in) :: nu_dt, mtol
+    real(wp) :: c
+    c = nu_dt/mc%h**2
+    call lap(mc%u, mc%um, mc%pe)
+    call lap(mc%v, mc%vm, mc%b)
+  contains
+    subroutine lap(w, wm, tmp)
+      real(wp), intent(inout) :: w(:), tmp(:)
+      real(wp), intent(in) :: wm(:)
+      integer(ik) :: i, j, k, n1
+      n1 = mc%nn(1)
+      tmp = w
+      do j = 2, mc%nn(2) - 1
+        do i = 2, n1 - 1
+          k = i + (j - 1)*n1
+          if (wm(k) > mtol .and. wm(k - 1) > mtol .and. wm(k + 1) > mtol .and. wm(k - n1) > mtol .and. &
+              wm(k + n1) > mtol) &
+            w(k) = tmp(k) + c*(tmp(k - 1) + tmp(k + 1) + tmp(k - n1) + tmp(k + n1) - 4.0_wp*tmp(k))
+        end do
+      end do
+    end subroutine lap
+  end subroutine viscosity
+
+  subroutine incomp_step(ic, g, p, flip, gravity, dt, steps, diag, timers, smax, st)
+    !! One semi-implicit step of length dt. diag and timers follow cpdi_step's layout.
+    type(incomp_t), intent(inout) :: ic
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(inout) :: p
+    real(wp), intent(in) :: flip, gravity(2), dt
+    integer(int64), intent(in) :: steps
+    real(wp), intent(inout) :: diag(:), timers(:)
+    real(wp), intent(out) :: smax
+    type(status_t), intent(inout) :: st
+    real(wp) :: mtol
+    logical :: converged
+    character(len=400) :: buf
+    integer(int64) :: t0
+
+    call tic(t0)
+    call weights(ic, p, steps, st)
+    if (.not. st%ok()) return
+    call toc(timers, 1, t0)
+    mtol = 1.0e-12_wp*minval(p%m)
+    call p2g_faces(ic, p, g, dt, gravity, ic%transfer == TRANSFER_APIC)
+    call face_velocities(ic%mc, mtol)
+    call toc(timers, 2, t0)
+    if (ic%visc > 0.0_wp) call viscosity(ic%mc, dt*ic%visc/ic%rho, mtol)
+    call mac_walls(ic%mc)
+    call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
+    call toc(timers, 3, t0)
+    call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
+    call toc(timers, 8, t0)
+    diag(15) = real(ic%mc%iters, wp)
+    diag(16) = ic%mc%resid
+    diag(17) = diag(17) + real(ic%mc%iters, wp)
+    if (.not. converged) then
+      write (buf, '(a,i0,a,es10.3,a,i0,a,es9.2,a)') 'step ', steps + 1, ': the pressure solve did not converge '// &
+        '(relative residual ', ic%mc%resid, ' after ', ic%mc%iters, ' CG iterations, tolerance ', ic%tol, &
+        '); reduce [solver] cfl, or raise [solver] cg_max_iterations or cg_tolerance'
+      call st%set(CPDI_ERR_SOLVE, trim(buf))
+      return
+    end if
+    call mac_project(ic%mc, dt, ic%rho)
+    where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
+      ic%mc%uo = ic%mc%u - ic%mc%uo
+    elsewhere
+      ic%mc%uo = 0.0_wp
+    end where
+    where (ic%mc%vval == 1)
+      ic%mc%vo = ic%mc%v - ic%mc%vo
+    elsewhere
+      ic%mc%vo = 0.0_wp
+    end where
+    call mac_extrapolate(ic%mc, EXTRAPOLATION_LAYERS)
+    call mac_ghost_pressure(ic%mc)
+    call toc(timers, 3, t0)
+    call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
+    call toc(timers, 4, t0)
+  end subroutine incomp_step
+
+  subroutine g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
+    !! Velocities, affine matrices (stored as L) and positions of every particle; particle
+    !! pressure from the cells; kinetic energy, momentum and works (block by block).
+    type(incomp_t), intent(inout) :: ic
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(inout) :: p
+    real(wp), intent(in) :: flip, dt, gravity(2)
+    real(wp), intent(inout) :: diag(:)
+    real(wp), intent(out) :: smax
+    type(status_t), intent(inout) :: st
+    integer(int64), intent(in) :: steps
+    integer(ik) :: c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, bad(NCHUNK)
+    real(wp) :: vn(2), dv(2), cu(2), cv(2), w, gxk, gyk, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp, &
+                s(2), pp, wx(2), wy(2), vmax
+    logical :: closed(4), apic
+    character(len=300) :: buf
+
+    apic = ic%transfer == TRANSFER_APIC
+    xmin = g%origin
+    xmax = g%origin + real(g%ncell, wp)*g%h
+    closed = g%walls /= WALL_OPEN
+    vmax = 0.0_wp
+    bad = 0
+    associate (mc => ic%mc)
+      !$omp parallel do schedule(dynamic, 1) default(shared) reduction(max:vmax) &
+      !$omp private(c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, vn, dv, cu, cv, w, gxk, gyk, xo, ke, mom, wg, wb, &
+      !$omp mp, s, pp, wx, wy)
+      do c = 1, NCHUNK
+        call chunk_range(c, p%n, lo, hi)
+        ke = 0.0_wp
+        mom = 0.0_wp
+        wg = 0.0_wp
+        wb = 0.0_wp
+        nclamp = 0
+        do ip = lo, hi
+          mp = p%m(ip)
+          xo = p%x(:, ip)
+          vn = 0.0_wp
+          dv = 0.0_wp
+          cu = 0.0_wp
+          cv = 0.0_wp
+          do a = 1, shape_count(ic%shu, ip)
+            call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
+            vn(1) = vn(1) + w*mc%u(k)
+            dv(1) = dv(1) + w*mc%uo(k)
+            cu = cu + mc%u(k)*[gxk, gyk]
+          end do
+          do a = 1, shape_count(ic%shv, ip)
+            call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
+            vn(2) = vn(2) + w*mc%v(k)
+            dv(2) = dv(2) + w*mc%vo(k)
+            cv = cv + mc%v(k)*[gxk, gyk]
+          end do
+          if (apic) then
+            p%v(:, ip) = vn
+          else
+            p%v(:, ip) = flip*(p%v(:, ip) + dv) + (1.0_wp - flip)*vn
+          end if
+          p%L(:, ip) = [cu(1), cv(1), cu(2), cv(2)]
+          p%x(:, ip) = xo + dt*vn
+          call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
+          ! pressure: bilinear over the cell centres, indices clamped to the physical cells
+          s = (p%x(:, ip) - g%gorig)/g%h - 0.5_wp
+          i0 = int(floor(s(1))) + 1
+          j0 = int(floor(s(2))) + 1
+          s = s - floor(s)
+          wx = [1.0_wp - s(1), s(1)]
+          wy = [1.0_wp - s(2), s(2)]
+          pp = 0.0_wp
+          do j = 0, 1
+            do i = 0, 1
+              k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*mc%nn(1)
+              pp = pp + wx(i + 1)*wy(j + 1)*mc%pe(k)
+            end do
+          end do
+          p%sig(:, ip) = [-pp, -pp, 0.0_wp, -pp]
+          if (.not. (abs(p%v(1, ip)) + abs(p%v(2, ip)) + abs(pp) < huge(1.0_wp))) then
+            if (bad(c) == 0) bad(c) = ip
+          end if
+          vmax = max(vmax, abs(p%v(1, ip)), abs(p%v(2, ip)), abs(vn(1)), abs(vn(2)))
+          ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
+          mom = mom + mp*p%v(:, ip)
+          wg = wg + mp*dot_product(gravity, p%x(:, ip) - xo)
+          wb = wb + mp*dot_product(p%bf(:, ip), p%x(:, ip) - xo)
+        end do
+        ic%red(:, c) = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp), 0.0_wp, 0.0_wp]
+      end do
+      !$omp end parallel do
+    end associate
+    do c = 1, NCHUNK
+      if (bad(c) == 0) cycle
+      write (buf, '(a,i0,a,i0,a)') 'step ', steps + 1, ': NaN or Inf in the velocity or pressure of particle ', &
+        bad(c), '; the run became unstable (reduce cfl)'
+      call st%set(CPDI_ERR_NAN, trim(buf))
+      return
+    end do
+    diag(4) = sum(ic%red(1, :))
+    diag(5) = 0.0_wp
+    diag(6) = sum(ic%red(2, :))
+    diag(7) = sum(ic%red(3, :))
+    diag(8) = diag(8) + sum(ic%red(4, :))
+    diag(9) = diag(9) + sum(ic%red(5, :))
+    diag(12) = sum(ic%red(6, :))
+    smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
+  end subroutine g2p_faces
+
+  subroutine incomp_transfer_cycle(ic, g, p, st)
+    !! P2G to the face lattices and straight back (no forces, no projection, dt = 0; PIC,
+    !! or APIC with transfer = apic): the transfer alone, for tests of what it conserves.
+    type(incomp_t), intent(inout) :: ic
+    type(grid_t), intent(in) :: g
+    type(particles_t), intent(inout) :: p
+    type(status_t), intent(inout) :: st
+    real(wp) :: diag(17), smax
+    integer(int64), parameter :: zero = 0
+    call weights(ic, p, zero, st)
+    if (.not. st%ok()) return
+    call p2g_faces(ic, p, g, 0.0_wp, [0.0_wp, 0.0_wp], ic%transfer == TRANSFER_APIC)
+    call face_velocities(ic%mc, 1.0e-12_wp*minval(p%m))
+    ic%mc%uo = 0.0_wp
+    ic%mc%vo = 0.0_wp
+    diag = 0.0_wp
+    call g2p_faces(ic, g, p, 0.0_wp, 0.0_wp, [0.0_wp, 0.0_wp], diag, smax, st, zero)
+  end subroutine incomp_transfer_cycle
+
+  subroutine tic(t0)
+    integer(int64), intent(out) :: t0
+    call system_clock(t0)
+  end subroutine tic
+
+  subroutine toc(timers, slot, t0)
+    real(wp), intent(inout) :: timers(:)
+    integer(ik), intent(in) :: slot
+    integer(int64), intent(inout) :: t0
+    integer(int64) :: t1, rate
+    call system_clock(t1, rate)
+    timers(slot) = timers(slot) + real(t1 - t0, wp)/real(rate, wp)
+    t0 = t1
+  end subroutine toc
+end module cpdi_incompressible

@@ -1,0 +1,464 @@
+!> Pressure projection of incompressible water on a staggered (MAC) grid.
+module cpdi_pressure
+  !! Cells are those of the background grid: pressure at cell centres, the x velocity u on
+  !! vertical faces and the y velocity v on horizontal faces (Harlow & Welch 1965). All arrays
+  !! use the padded node numbering of cpdi_grid: cell k is the cell whose lower-left node is
+  !! node k, u(k) is its left face and v(k) its bottom face, so the u lattice is the node
+  !! lattice shifted by h/2 in y and the v lattice the node lattice shifted by h/2 in x.
+  !!
+  !! The discrete divergence (cells) and gradient (faces) are adjoint, so the Laplacian is
+  !! the 5-point stencil: it has no checkerboard null mode (docs/incompressible_water.md).
+  !!
+  !! * Cells hold water (CELL_FLUID: a water particle's centre lies in them), air
+  !!   (CELL_AIR: p = 0) or a wall (CELL_SOLID: beyond a closed wall; the face to it carries
+  !!   the wall's zero normal velocity, a Neumann condition for p).
+  !! * Free surface, ghost fluid (Gibou et al. 2002): the surface lies where the cell fill
+  !!   fraction (particle volume per cell area, smoothed bilinearly) falls through 1/2 between
+  !!   a water cell and an air cell, at theta h from the water cell's centre; the air side's
+  !!   pressure is the ghost value p_c (1 - 1/theta), so p = 0 on the surface itself.
+  !! * Volume correction (after Kugelstadt et al. 2019): a water cell filled beyond 1 gets
+  !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again.
+  !! * Solve: conjugate gradients preconditioned by modified incomplete Cholesky, MIC(0)
+  !!   (Bridson 2015, ch. 5), from p = 0 (a step depends on the particles alone, so a restart
+  !!   from a checkpoint is exact); relative residual ||b - A p||_2 / ||b||_2 <= tol.
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_STATE
+  implicit none
+  private
+
+  integer(ik), parameter, public :: CELL_AIR = 0
+  integer(ik), parameter, public :: CELL_FLUID = 1
+  integer(ik), parameter, public :: CELL_SOLID = 2
+  real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
+  real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
+  real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
+
+  type, public :: mac_t
+    !! Staggered-grid fields over the padded node numbering (one entry per node index).
+    integer(ik) :: nn(2) = 0                 !! lattice size (= the nodal grid's, padding included)
+    integer(ik) :: lo(2) = 0, hi(2) = 0      !! physical cells: lattice indices lo..hi per axis
+    real(wp) :: h = 0.0_wp                   !! cell size [m]
+    integer(ik), allocatable :: cell(:)      !! CELL_AIR, CELL_FLUID or CELL_SOLID
+    real(wp), allocatable :: fill(:)         !! cell fill fraction [-]
+    real(wp), allocatable :: um(:), vm(:)    !! face masses
+    real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
+    real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
+    integer(ik), allocatable :: uval(:), vval(:) !! 1: face set by the projection; 2, 3: extrapolated
+    real(wp), allocatable :: p(:)            !! cell pressure [Pa]
+    real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
+    real(wp), allocatable :: b(:), adiag(:), ai(:), aj(:), pre(:), r(:), z(:), s(:), q(:)
+    integer(ik) :: nfluid = 0                !! water cells
+    integer(ik) :: iters = 0                 !! CG iterations of the last solve
+    real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
+  end type mac_t
+
+  public :: mac_alloc, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
+            mac_extrapolate, mac_ghost_pressure, mac_apply
+
+contains
+
+  subroutine mac_alloc(mc, nn, lo, hi, h, st)
+    !! Storage for a lattice of nn(1) x nn(2) entries, physical cells lo..hi.
+    type(mac_t), intent(inout) :: mc
+    integer(ik), intent(in) :: nn(2), lo(2), hi(2)
+    real(wp), intent(in) :: h
+    type(status_t), intent(inout) :: st
+    integer :: ierr, n
+    n = nn(1)*nn(2)
+    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uval, &
+                                        mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
+                                        mc%s, mc%q)
+    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uval(n), &
+              mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
+              mc%z(n), mc%s(n), mc%q(n), stat=ierr)
+    if (ierr /= 0) then
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate the pressure grid; use a larger cell size')
+      return
+    end if
+    mc%nn = nn
+    mc%lo = lo
+    mc%hi = hi
+    mc%h = h
+    mc%cell = CELL_AIR
+    mc%fill = 0.0_wp
+    mc%um = 0.0_wp
+    mc%vm = 0.0_wp
+    mc%u = 0.0_wp
+    mc%v = 0.0_wp
+    mc%uo = 0.0_wp
+    mc%vo = 0.0_wp
+    mc%uval = 0
+    mc%vval = 0
+    mc%p = 0.0_wp
+    mc%pe = 0.0_wp
+    mc%b = 0.0_wp
+    mc%adiag = 0.0_wp
+    mc%ai = 0.0_wp
+    mc%aj = 0.0_wp
+    mc%pre = 0.0_wp
+    mc%r = 0.0_wp
+    mc%z = 0.0_wp
+    mc%s = 0.0_wp
+    mc%q = 0.0_wp
+  end subroutine mac_alloc
+
+  subroutine mac_mark_outside(mc, closed)
+    !! Cells outside the physical domain: CELL_SOLID beyond a closed wall, CELL_AIR beyond an
+    !! open side; physical cells become CELL_AIR (the transfer marks the water cells).
+    type(mac_t), intent(inout) :: mc
+    logical, intent(in) :: closed(4)   !! left, right, bottom, top
+    integer(ik) :: i, j, k
+    logical :: solid
+    do j = 1, mc%nn(2)
+      do i = 1, mc%nn(1)
+        k = i + (j - 1)*mc%nn(1)
+        solid = (i < mc%lo(1) .and. closed(1)) .or. (i > mc%hi(1) .and. closed(2)) .or. &
+                (j < mc%lo(2) .and. closed(3)) .or. (j > mc%hi(2) .and. closed(4))
+        mc%cell(k) = merge(CELL_SOLID, CELL_AIR, solid)
+      end do
+    end do
+  end subroutine mac_mark_outside
+
+  subroutine mac_walls(mc)
+    !! Faces between a wall cell and any other cell get the wall's zero normal velocity
+    !! (before the pressure equation is assembled: its right-hand side sees them).
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, k, n1
+    n1 = mc%nn(1)
+    do j = 2, mc%nn(2)
+      do i = 2, n1
+        k = i + (j - 1)*n1
+        if ((mc%cell(k - 1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) mc%u(k) = 0.0_wp
+        if ((mc%cell(k - n1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) mc%v(k) = 0.0_wp
+      end do
+    end do
+  end subroutine mac_walls
+
+  pure real(wp) function surface_theta(fw, fa)
+    !! Distance, in cells, from a water cell's centre (fill fw) to the surface towards an air
+    !! neighbour (fill fa): where the linear fill between the two centres is 1/2.
+    real(wp), intent(in) :: fw, fa
+    if (fw <= 0.5_wp) then
+      surface_theta = THETA_MIN
+    else if (fa >= 0.5_wp) then
+      surface_theta = 1.0_wp
+    else
+      surface_theta = min(1.0_wp, max(THETA_MIN, (fw - 0.5_wp)/(fw - fa)))
+    end if
+  end function surface_theta
+
+  subroutine mac_assemble(mc, dt, rho, beta)
+    !! Matrix (5-point, ghost-fluid surface) and right-hand side of the pressure equation
+    !! A p = (rho h^2 / dt) (q - div u) on the water cells, from the face velocities u, v.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(in) :: dt, rho, beta
+    integer(ik) :: i, j, c, n1, nb(4), a
+    real(wp) :: scale, div, qv
+    n1 = mc%nn(1)
+    scale = rho*mc%h**2/dt
+    mc%nfluid = 0
+    do j = mc%lo(2) - 1, mc%hi(2) + 1
+      do i = mc%lo(1) - 1, mc%hi(1) + 1
+        c = i + (j - 1)*n1
+        mc%adiag(c) = 0.0_wp
+        mc%ai(c) = 0.0_wp
+        mc%aj(c) = 0.0_wp
+        mc%b(c) = 0.0_wp
+        mc%pre(c) = 0.0_wp
+        if (mc%cell(c) /= CELL_FLUID) mc%p(c) = 0.0_wp
+      end do
+    end do
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID) cycle
+        mc%nfluid = mc%nfluid + 1
+        nb = [c - 1, c + 1, c - n1, c + n1]
+        do a = 1, 4
+          select case (mc%cell(nb(a)))
+          case (CELL_FLUID)
+            mc%adiag(c) = mc%adiag(c) + 1.0_wp
+            if (a == 2) mc%ai(c) = -1.0_wp
+            if (a == 4) mc%aj(c) = -1.0_wp
+          case (CELL_AIR)
+            mc%adiag(c) = mc%adiag(c) + 1.0_wp/surface_theta(mc%fill(c), mc%fill(nb(a)))
+          end select
+        end do
+        div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
+        qv = 0.0_wp
+        if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
+        mc%b(c) = scale*(qv - div)
+      end do
+    end do
+  end subroutine mac_assemble
+
+  subroutine mac_apply(mc, x, y)
+    !! y = A x on the water cells (0 elsewhere).
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(in) :: x(:)
+    real(wp), intent(inout) :: y(:)
+    integer(ik) :: i, j, c, n1
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID) then
+          y(c) = 0.0_wp
+          cycle
+        end if
+        y(c) = mc%adiag(c)*x(c) + mc%ai(c)*x(c + 1) + mc%ai(c - 1)*x(c - 1) + mc%aj(c)*x(c + n1) &
+               + mc%aj(c - n1)*x(c - n1)
+      end do
+    end do
+  end subroutine mac_apply
+
+  subroutine mic0(mc)
+    !! MIC(0) factor: pre = 1 / sqrt(e) of every water cell.
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1
+    real(wp) :: e
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID) cycle
+        e = mc%adiag(c) - (mc%ai(c - 1)*mc%pre(c - 1))**2 - (mc%aj(c - n1)*mc%pre(c - n1))**2 &
+            - MIC_TAU*(mc%ai(c - 1)*mc%aj(c - 1)*mc%pre(c - 1)**2 + mc%aj(c - n1)*mc%ai(c - n1)*mc%pre(c - n1)**2)
+        if (e < MIC_SIGMA*mc%adiag(c)) e = mc%adiag(c)
+        mc%pre(c) = 1.0_wp/sqrt(e)
+      end do
+    end do
+  end subroutine mic0
+
+  subroutine mic0_apply(mc)
+    !! z = M^-1 r with the MIC(0) factor (forward, then backward substitution); q is scratch.
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1
+    real(wp) :: t
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID) then
+          mc%q(c) = 0.0_wp
+          cycle
+        end if
+        t = mc%r(c) - mc%ai(c - 1)*mc%pre(c - 1)*mc%q(c - 1) - mc%aj(c - n1)*mc%pre(c - n1)*mc%q(c - n1)
+        mc%q(c) = t*mc%pre(c)
+      end do
+    end do
+    do j = mc%hi(2), mc%lo(2), -1
+      do i = mc%hi(1), mc%lo(1), -1
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID) then
+          mc%z(c) = 0.0_wp
+          cycle
+        end if
+        t = mc%q(c) - mc%ai(c)*mc%pre(c)*mc%z(c + 1) - mc%aj(c)*mc%pre(c)*mc%z(c + n1)
+        mc%z(c) = t*mc%pre(c)
+      end do
+    end do
+  end subroutine mic0_apply
+
+  real(wp) function fdot(mc, x, y)
+    !! Sum of x y over the physical cells (x and y vanish outside the water).
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(in) :: x(:), y(:)
+    integer(ik) :: j, c0, c1
+    fdot = 0.0_wp
+    do j = mc%lo(2), mc%hi(2)
+      c0 = mc%lo(1) + (j - 1)*mc%nn(1)
+      c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+      fdot = fdot + dot_product(x(c0:c1), y(c0:c1))
+    end do
+  end function fdot
+
+  subroutine mac_solve(mc, tol, maxit, converged)
+    !! Solve A p = b by MIC(0)-preconditioned CG from p = 0. Sets
+    !! iters and resid; converged is false if maxit iterations did not reach tol.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(in) :: tol
+    integer(ik), intent(in) :: maxit
+    logical, intent(out) :: converged
+    real(wp) :: bnorm, rz, rzn, alpha, rnorm
+    integer(ik) :: it, j, c0, c1
+    mc%iters = 0
+    mc%resid = 0.0_wp
+    mc%p = 0.0_wp
+    converged = .true.
+    if (mc%nfluid == 0) return
+    bnorm = sqrt(fdot(mc, mc%b, mc%b))
+    if (bnorm == 0.0_wp) then
+      mc%p = 0.0_wp
+      return
+    end if
+    call mac_apply(mc, mc%p, mc%q)
+    do j = mc%lo(2), mc%hi(2)
+      c0 = mc%lo(1) + (j - 1)*mc%nn(1)
+      c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+      mc%r(c0:c1) = mc%b(c0:c1) - mc%q(c0:c1)
+    end do
+    rnorm = sqrt(fdot(mc, mc%r, mc%r))
+    mc%resid = rnorm/bnorm
+    if (mc%resid <= tol) return
+    call mic0(mc)
+    call mic0_apply(mc)
+    mc%s = mc%z
+    rz = fdot(mc, mc%r, mc%z)
+    converged = .false.
+    do it = 1, maxit
+      call mac_apply(mc, mc%s, mc%q)
+      alpha = rz/fdot(mc, mc%s, mc%q)
+      do j = mc%lo(2), mc%hi(2)
+        c0 = mc%lo(1) + (j - 1)*mc%nn(1)
+        c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+        mc%p(c0:c1) = mc%p(c0:c1) + alpha*mc%s(c0:c1)
+        mc%r(c0:c1) = mc%r(c0:c1) - alpha*mc%q(c0:c1)
+      end do
+      mc%iters = it
+      rnorm = sqrt(fdot(mc, mc%r, mc%r))
+      mc%resid = rnorm/bnorm
+      if (mc%resid <= tol) then
+        converged = .true.
+        exit
+      end if
+      if (.not. (mc%resid < huge(1.0_wp))) exit
+      call mic0_apply(mc)
+      rzn = fdot(mc, mc%r, mc%z)
+      do j = mc%lo(2), mc%hi(2)
+        c0 = mc%lo(1) + (j - 1)*mc%nn(1)
+        c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+        mc%s(c0:c1) = mc%z(c0:c1) + (rzn/rz)*mc%s(c0:c1)
+      end do
+      rz = rzn
+    end do
+  end subroutine mac_solve
+
+  subroutine mac_project(mc, dt, rho)
+    !! u <- u - dt/rho grad p on every face next to water (ghost pressure across the
+    !! surface); faces next to a wall cell get the wall's zero normal velocity. Marks the
+    !! faces it set (uval, vval = 1); the others are left for mac_extrapolate.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(in) :: dt, rho
+    integer(ik) :: i, j, k, n1
+    real(wp) :: scale
+    n1 = mc%nn(1)
+    scale = dt/(rho*mc%h)
+    mc%uval = 0
+    mc%vval = 0
+    do j = mc%lo(2) - 1, mc%hi(2) + 1
+      do i = mc%lo(1), mc%hi(1) + 1
+        k = i + (j - 1)*n1
+        call face(k - 1, k, mc%u(k), mc%uval(k))
+      end do
+    end do
+    do j = mc%lo(2), mc%hi(2) + 1
+      do i = mc%lo(1) - 1, mc%hi(1) + 1
+        k = i + (j - 1)*n1
+        call face(k - n1, k, mc%v(k), mc%vval(k))
+      end do
+    end do
+  contains
+    subroutine face(cl, cr, w, val)
+      !! Face between cells cl (lower or left) and cr.
+      integer(ik), intent(in) :: cl, cr
+      real(wp), intent(inout) :: w
+      integer(ik), intent(inout) :: val
+      integer(ik) :: tl, tr
+      tl = mc%cell(cl)
+      tr = mc%cell(cr)
+      if (tl == CELL_SOLID .or. tr == CELL_SOLID) then
+        if (tl /= tr) then   ! a wall face: the wall's zero normal velocity
+          w = 0.0_wp
+          val = 1
+        end if
+      else if (tl == CELL_FLUID .and. tr == CELL_FLUID) then
+        w = w - scale*(mc%p(cr) - mc%p(cl))
+        val = 1
+      else if (tl == CELL_FLUID) then
+        w = w + scale*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
+        val = 1
+      else if (tr == CELL_FLUID) then
+        w = w - scale*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
+        val = 1
+      end if
+    end subroutine face
+  end subroutine mac_project
+
+  subroutine mac_extrapolate(mc, layers)
+    !! Faces the projection did not set (not next to water) take the mean of their set
+    !! neighbours on the same lattice, layer by layer, so particles at the surface gather
+    !! projected velocities; faces still unset after `layers` layers are zero. The FLIP
+    !! increments (uo, vo hold u - u_old on entry) are extrapolated alike.
+    type(mac_t), intent(inout) :: mc
+    integer(ik), intent(in) :: layers
+    call extrapolate_one(mc%u, mc%uo, mc%uval)
+    call extrapolate_one(mc%v, mc%vo, mc%vval)
+  contains
+    subroutine extrapolate_one(w, dw, val)
+      real(wp), intent(inout) :: w(:), dw(:)
+      integer(ik), intent(inout) :: val(:)
+      integer(ik) :: i, j, k, n1, l, nb(4), a, cnt
+      real(wp) :: sw, sd
+      n1 = mc%nn(1)
+      do l = 1, layers
+        do j = 2, mc%nn(2) - 1
+          do i = 2, n1 - 1
+            k = i + (j - 1)*n1
+            if (val(k) /= 0) cycle
+            nb = [k - 1, k + 1, k - n1, k + n1]
+            cnt = 0
+            sw = 0.0_wp
+            sd = 0.0_wp
+            do a = 1, 4
+              if (val(nb(a)) >= 1 .and. val(nb(a)) <= l) then
+                cnt = cnt + 1
+                sw = sw + w(nb(a))
+                sd = sd + dw(nb(a))
+              end if
+            end do
+            if (cnt > 0) then
+              w(k) = sw/real(cnt, wp)
+              dw(k) = sd/real(cnt, wp)
+              val(k) = l + 1
+            end if
+          end do
+        end do
+      end do
+      where (val == 0)
+        w = 0.0_wp
+        dw = 0.0_wp
+      end where
+    end subroutine extrapolate_one
+  end subroutine mac_extrapolate
+
+  subroutine mac_ghost_pressure(mc)
+    !! pe: the pressure in water cells, the mean ghost value p_w (1 - 1/theta) of the water
+    !! neighbours in air cells next to water, 0 in other air cells; wall cells mirror their
+    !! inner neighbour (zero normal gradient) through index clamping at interpolation.
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1, nb(4), a, cnt
+    real(wp) :: sg
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) == CELL_FLUID) then
+          mc%pe(c) = mc%p(c)
+          cycle
+        end if
+        nb = [c - 1, c + 1, c - n1, c + n1]
+        cnt = 0
+        sg = 0.0_wp
+        do a = 1, 4
+          if (mc%cell(nb(a)) == CELL_FLUID) then
+            cnt = cnt + 1
+            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/surface_theta(mc%fill(nb(a)), mc%fill(c)))
+          end if
+        end do
+        mc%pe(c) = 0.0_wp
+        if (cnt > 0) mc%pe(c) = sg/real(cnt, wp)
+      end do
+    end do
+  end subroutine mac_ghost_pressure
+end module cpdi_pressure
