@@ -17,7 +17,9 @@ module cpdi_pressure
   !!   a water cell and an air cell, at theta h from the water cell's centre; the air side's
   !!   pressure is the ghost value p_c (1 - 1/theta), so p = 0 on the surface itself.
   !! * Volume correction (after Kugelstadt et al. 2019): a water cell filled beyond 1 gets
-  !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again.
+  !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again. It
+  !!   is solved for on its own (cpdi_incompressible): its velocity moves the particles but is
+  !!   not kept in their momentum, so it adds no force to the flow.
   !! * Solve: conjugate gradients preconditioned by modified incomplete Cholesky, MIC(0)
   !!   (Bridson 2015, ch. 5), from p = 0 (a step depends on the particles alone, so a restart
   !!   from a checkpoint is exact); relative residual ||b - A p||_2 / ||b||_2 <= tol.
@@ -43,6 +45,7 @@ module cpdi_pressure
     real(wp), allocatable :: um(:), vm(:)    !! face masses
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
+    real(wp), allocatable :: uc(:), vc(:)    !! volume-correction velocities (advection only)
     integer(ik), allocatable :: uval(:), vval(:) !! 1: face set by the projection; 2, 3: extrapolated
     real(wp), allocatable :: p(:)            !! cell pressure [Pa]
     real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
@@ -65,10 +68,10 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr, n
     n = nn(1)*nn(2)
-    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uval, &
-                                        mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
+    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
+                                        mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
                                         mc%s, mc%q)
-    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uval(n), &
+    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
               mc%z(n), mc%s(n), mc%q(n), stat=ierr)
     if (ierr /= 0) then
@@ -87,6 +90,8 @@ contains
     mc%v = 0.0_wp
     mc%uo = 0.0_wp
     mc%vo = 0.0_wp
+    mc%uc = 0.0_wp
+    mc%vc = 0.0_wp
     mc%uval = 0
     mc%vval = 0
     mc%p = 0.0_wp
@@ -385,51 +390,41 @@ contains
     end subroutine face
   end subroutine mac_project
 
-  subroutine mac_extrapolate(mc, layers)
-    !! Faces the projection did not set (not next to water) take the mean of their set
-    !! neighbours on the same lattice, layer by layer, so particles at the surface gather
-    !! projected velocities; faces still unset after `layers` layers are zero. The FLIP
-    !! increments (uo, vo hold u - u_old on entry) are extrapolated alike.
-    type(mac_t), intent(inout) :: mc
+  subroutine mac_extrapolate(mc, w, val, layers)
+    !! Faces the projection did not set (val = 0: not next to water) take the mean of their
+    !! set neighbours on the same lattice, layer by layer, so particles at the surface gather
+    !! projected values; faces still unset after `layers` layers are zero. val is left as
+    !! it was (one marking serves several fields).
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(inout) :: w(:)
+    integer(ik), intent(in) :: val(:)
     integer(ik), intent(in) :: layers
-    call extrapolate_one(mc%u, mc%uo, mc%uval)
-    call extrapolate_one(mc%v, mc%vo, mc%vval)
-  contains
-    subroutine extrapolate_one(w, dw, val)
-      real(wp), intent(inout) :: w(:), dw(:)
-      integer(ik), intent(inout) :: val(:)
-      integer(ik) :: i, j, k, n1, l, nb(4), a, cnt
-      real(wp) :: sw, sd
-      n1 = mc%nn(1)
-      do l = 1, layers
-        do j = 2, mc%nn(2) - 1
-          do i = 2, n1 - 1
-            k = i + (j - 1)*n1
-            if (val(k) /= 0) cycle
-            nb = [k - 1, k + 1, k - n1, k + n1]
-            cnt = 0
-            sw = 0.0_wp
-            sd = 0.0_wp
-            do a = 1, 4
-              if (val(nb(a)) >= 1 .and. val(nb(a)) <= l) then
-                cnt = cnt + 1
-                sw = sw + w(nb(a))
-                sd = sd + dw(nb(a))
-              end if
-            end do
-            if (cnt > 0) then
-              w(k) = sw/real(cnt, wp)
-              dw(k) = sd/real(cnt, wp)
-              val(k) = l + 1
+    integer(ik) :: i, j, k, n1, l, nb(4), a, cnt, lev(size(val))
+    real(wp) :: sw
+    n1 = mc%nn(1)
+    lev = val
+    do l = 1, layers
+      do j = 2, mc%nn(2) - 1
+        do i = 2, n1 - 1
+          k = i + (j - 1)*n1
+          if (lev(k) /= 0) cycle
+          nb = [k - 1, k + 1, k - n1, k + n1]
+          cnt = 0
+          sw = 0.0_wp
+          do a = 1, 4
+            if (lev(nb(a)) >= 1 .and. lev(nb(a)) <= l) then
+              cnt = cnt + 1
+              sw = sw + w(nb(a))
             end if
           end do
+          if (cnt > 0) then
+            w(k) = sw/real(cnt, wp)
+            lev(k) = l + 1
+          end if
         end do
       end do
-      where (val == 0)
-        w = 0.0_wp
-        dw = 0.0_wp
-      end where
-    end subroutine extrapolate_one
+    end do
+    where (lev == 0) w = 0.0_wp
   end subroutine mac_extrapolate
 
   subroutine mac_ghost_pressure(mc)

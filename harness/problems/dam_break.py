@@ -41,10 +41,14 @@ def _rms(a):
     return float(np.sqrt(np.mean(np.square(a))))
 
 
-def front_metrics(series: dict) -> dict:
+def front_metrics(series: dict, z_max: float | None = None) -> dict:
+    """Misfits against Table 2 (front) and Table 6 (height). With z_max, front data at
+    Z >= z_max are left out: a simulated tank of z_max L cannot show a front beyond it."""
     d = dimensionless(series)
     Texp, Zexp = FRONT["T"], FRONT["Z"]
     ok = Texp <= d["T"][-1]
+    if z_max is not None:
+        ok &= Zexp < z_max
     Texp, Zexp = Texp[ok], Zexp[ok]
 
     def misfit(shift):  # simulated curve moved later by `shift` in T
