@@ -43,8 +43,10 @@ def loglog_convergence(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarra
 
 
 def time_series(path: Path, t, series: dict[str, np.ndarray], exact=None, points=None, xlabel="t", ylabel="",
-                title="", annotate: str | None = None, exact_label: str = "analytic") -> None:
+                title="", annotate: str | None = None, exact_label: str = "analytic", logy: bool = False) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4))
+    if logy:
+        ax.set_yscale("log")
     for name, y in series.items():  # y is an array over t, or an (x, y) pair of its own
         ax.plot(y[0] if isinstance(y, tuple) else t, y[1] if isinstance(y, tuple) else y, "-", label=name)
     if exact is not None:

@@ -41,7 +41,7 @@ def surface_height(x: np.ndarray, r: np.ndarray, x_lo: float, x_hi: float) -> fl
     the particle columns between x_lo and x_hi."""
     half_y = np.abs(r[:, 1]) + np.abs(r[:, 3])
     sel = (x[:, 0] > x_lo) & (x[:, 0] < x_hi)
-    cols = np.round(x[sel, 0] / (2 * np.abs(r[sel, 0]).max())).astype(np.int64)
+    cols = np.floor(x[sel, 0] / (2 * np.abs(r[sel, 0]).max())).astype(np.int64)
     tops = {}
     for c, top in zip(cols, x[sel, 1] + half_y[sel], strict=True):
         tops[c] = max(tops.get(c, -np.inf), top)
