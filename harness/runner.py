@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from harness import checkpoint
-from harness.cases import Case
+from harness.cases import Case, CaseError
 from harness.output import SeriesWriter, SnapshotWriter, corners, write_json
 from harness.probes import ProbeSet
 from harness.seeding import ParticleSet, seed
@@ -117,6 +117,34 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     return sim, parts
 
 
+def check_feasible(case: Case, sim: Simulation) -> None:
+    """Refuse a run whose first time step forecasts more than solver.max_estimated_steps
+    steps to t_end, naming what sets the step and how to override."""
+    s = case["solver"]
+    dt = s.get("dt") or s["cfl"] * sim.stable_dt()
+    n = s["t_end"] / dt if dt > 0 else math.inf
+    if n <= s["max_estimated_steps"]:
+        return
+    h = case["grid"]["cell"]
+    why = f"the time step {dt:.3g} s"
+    if s["fluid"] != "incompressible":
+        fluids = [(m["bulk_modulus"] / m["density"]) ** 0.5 for m in case["materials"] if "bulk_modulus" in m]
+        solids = [((m["youngs_modulus"] * (1 - m["poisson_ratio"]) / ((1 + m["poisson_ratio"])
+                                                                        * (1 - 2 * m["poisson_ratio"])))
+                   / m["density"]) ** 0.5 for m in case["materials"] if "youngs_modulus" in m]
+        c, who = max([(c, m["name"]) for c, m in zip(fluids, [m for m in case["materials"] if "bulk_modulus" in m],
+                                                             strict=True)]
+                     + [(c, m["name"]) for c, m in zip(solids, [m for m in case["materials"]
+                                                                 if "youngs_modulus" in m], strict=True)],
+                     default=(0.0, "?"))
+        why += (f", set by the sound speed {c:.4g} m/s of material '{who}' (bulk_modulus or youngs_modulus) on "
+                f"cells of {h:g} m")
+    raise CaseError(f"{case.name}: {why} forecasts {n:.3g} steps to t_end = {s['t_end']:g} s, more than "
+                    f"solver.max_estimated_steps = {s['max_estimated_steps']:.3g}; use fluid = \"incompressible\" "
+                    "or a reduced bulk modulus (c = 10 sqrt(2 g H) is the usual choice), a coarser grid or a "
+                    "shorter t_end, or raise solver.max_estimated_steps to run it anyway")
+
+
 @dataclass
 class RunResult:
     summary: dict[str, Any]
@@ -161,6 +189,11 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
     if out_dir is None and (checkpoint_every is not None or restart is not None):
         raise ValueError("checkpoint_every and restart need an output directory")
     sim, parts = build(case)
+    try:
+        check_feasible(case, sim)
+    except CaseError:
+        sim.close()
+        raise
     probes = ProbeSet(case, parts)
     columns = SERIES_BASE + probes.names
     rows: dict[str, list[float]] = {c: [] for c in columns}

@@ -1,0 +1,69 @@
+"""Bad input for the water models gets one clear error naming the problem and the fix."""
+
+from pathlib import Path
+
+import pytest
+
+from harness import cases, runner
+from harness.cases import CaseError
+from harness.solver import CpdiError
+
+REPO = Path(__file__).resolve().parents[1]
+TANK = REPO / "cases" / "resting_tank.toml"
+
+
+def test_hopeless_time_step_is_refused_before_running(tmp_path):
+    # real water (K = 2.13 GPa) on the dam break's grid forces dt = 2e-6 s: 1000 s would take 5e8 steps
+    case = cases.load(REPO / "cases" / "dam_break.toml", ["solver.t_end=1000"])
+    with pytest.raises(CaseError, match=r"sound speed 14\d\d m/s of material 'water'.*max_estimated_steps"):
+        runner.run(case, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()  # refused before any output is touched
+
+
+def test_hopeless_limit_can_be_raised():
+    case = cases.load(REPO / "cases" / "dam_break.toml", ["solver.t_end=1000", "solver.max_estimated_steps=1e9"])
+    sim, _ = runner.build(case)
+    runner.check_feasible(case, sim)  # no error: the user asked for it
+    sim.close()
+
+
+def test_incompressible_refuses_a_solid():
+    case = cases.load(REPO / "cases" / "sinking_block.toml", ['solver.fluid="incompressible"',
+                                                              'solver.projection="none"', "contact.enabled=false"])
+    with pytest.raises(CpdiError, match="not a newtonian_fluid.*weakly_compressible") as ei:
+        runner.run(case, None, progress=False)
+    assert ei.value.kind == "input"
+
+
+def test_incompressible_refuses_damping_and_projection():
+    for over, text in ((["solver.damping=0.1"], "damping"), (['solver.projection="cell"'], "projection")):
+        case = cases.load(TANK, over)
+        with pytest.raises(CpdiError, match=text):
+            runner.run(case, None, progress=False)
+
+
+def test_apic_needs_incompressible():
+    case = cases.load(TANK, ['solver.fluid="weakly_compressible"', 'solver.transfer="apic"'])
+    with pytest.raises(CpdiError, match="apic.*incompressible"):
+        runner.build(case)
+
+
+def test_non_converging_solve_names_residual_and_fix(tmp_path):
+    case = cases.load(TANK, ["solver.cg_max_iterations=2", "solver.t_end=1.0", "solver.output_every=0.5"])
+    with pytest.raises(runner.RunFailed, match=r"did not converge.*relative residual.*cg_max_iterations") as ei:
+        runner.run(case, tmp_path, progress=False)
+    assert ei.value.summary["status"] == "failed"
+    assert "solve" in ei.value.summary["error"]
+
+
+def test_zero_volume_water_body_is_refused():
+    with pytest.raises(CaseError):
+        cases.load(TANK, ["bodies.0.geometry.max=[2.5, 0.0]"])
+
+
+def test_incompressible_water_needs_no_bulk_modulus():
+    raw = cases.load(TANK).data
+    mats = [{k: v for k, v in m.items() if k != "bulk_modulus"} for m in raw["materials"]]
+    assert "bulk_modulus" not in mats[0]
+    data = cases.validate({**raw, "materials": mats})
+    assert data["solver"]["fluid"] == "incompressible"
