@@ -221,8 +221,11 @@ def main(quick: bool = False) -> int:
         (bar.write if bar else print)(msg)
     if bar:
         bar.close()
+    from harness import bench_water
+
     data = {"cases": rows, "summary": summary(rows), "repeats": REPEATS, "projection": PROJECTION,
-            "provenance": provenance.collect(REPO, REPO / "build"), "quick": quick}
+            "provenance": provenance.collect(REPO, REPO / "build"), "quick": quick,
+            "water_models": bench_water.run(quick)}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")
     _plot(rows, OUT / "bench.png")
     _plot_phases(rows, OUT / "phases.png")
