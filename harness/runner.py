@@ -38,7 +38,7 @@ from harness.solver import CpdiError, Simulation, pressure
 
 SERIES_BASE = ["t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y", "gravity_work",
                "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt", "cg_iterations",
-               "cg_residual"]
+               "cg_residual", "correction_work"]
 
 
 STOP_LATENCY_S = 0.2  # wall time per solver call while a stop request is watched

@@ -27,7 +27,7 @@ TRANSFERS = {"flip": 0, "apic": 1}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
-              "viscous_dissipation", "cg_iterations", "cg_residual", "cg_iterations_total")
+              "viscous_dissipation", "cg_iterations", "cg_residual", "cg_iterations_total", "correction_work")
 TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection", "pressure_solve")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
                7: "cfl", 8: "lapack", 9: "handle", 10: "alloc", 11: "solve"}

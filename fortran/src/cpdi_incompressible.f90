@@ -231,6 +231,14 @@ contains
           end do
         end do
       end do
+      ! a cell without a particle centre inside the water is still water: the particles'
+      ! volume covers it (a pocket of p = 0 there would pull the water around it in)
+      do j = mc%lo(2), mc%hi(2)
+        do i = mc%lo(1), mc%hi(1)
+          k = i + (j - 1)*n1
+          if (mc%fill(k) > 0.5_wp) mc%cell(k) = CELL_FLUID
+        end do
+      end do
     end associate
   end subroutine p2g_faces
 
@@ -405,7 +413,7 @@ contains
     integer(int64), intent(in) :: steps
     integer(ik) :: c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, bad(NCHUNK)
     real(wp) :: vn(2), dv(2), vc(2), cu(2), cv(2), w, gxk, gyk, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp, &
-                s(2), pp, wx(2), wy(2), vmax
+                s(2), pp, wx(2), wy(2), vmax, wc
     logical :: closed(4), apic
     character(len=300) :: buf
 
@@ -418,13 +426,14 @@ contains
     associate (mc => ic%mc)
       !$omp parallel do schedule(dynamic, 1) default(shared) reduction(max:vmax) &
       !$omp private(c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, vn, dv, vc, cu, cv, w, gxk, gyk, xo, ke, mom, wg, wb, &
-      !$omp mp, s, pp, wx, wy)
+      !$omp mp, s, pp, wx, wy, wc)
       do c = 1, NCHUNK
         call chunk_range(c, p%n, lo, hi)
         ke = 0.0_wp
         mom = 0.0_wp
         wg = 0.0_wp
         wb = 0.0_wp
+        wc = 0.0_wp
         nclamp = 0
         do ip = lo, hi
           mp = p%m(ip)
@@ -477,10 +486,11 @@ contains
           vmax = max(vmax, abs(p%v(1, ip)), abs(p%v(2, ip)), abs(vn(1)), abs(vn(2)))
           ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
           mom = mom + mp*p%v(:, ip)
-          wg = wg + mp*dot_product(gravity, p%x(:, ip) - xo)
+          wg = wg + mp*dot_product(gravity, p%x(:, ip) - xo - dt*vc)   ! the flow's part only
+          wc = wc + mp*dt*dot_product(gravity, vc)
           wb = wb + mp*dot_product(p%bf(:, ip), p%x(:, ip) - xo)
         end do
-        ic%red(:, c) = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp), 0.0_wp, 0.0_wp]
+        ic%red(:, c) = [ke, mom(1), mom(2), wg, wb, real(nclamp, wp), wc, 0.0_wp]
       end do
       !$omp end parallel do
     end associate
@@ -498,6 +508,7 @@ contains
     diag(8) = diag(8) + sum(ic%red(4, :))
     diag(9) = diag(9) + sum(ic%red(5, :))
     diag(12) = sum(ic%red(6, :))
+    diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
 
@@ -508,7 +519,7 @@ contains
     type(grid_t), intent(in) :: g
     type(particles_t), intent(inout) :: p
     type(status_t), intent(inout) :: st
-    real(wp) :: diag(17), smax
+    real(wp) :: diag(18), smax
     integer(int64), parameter :: zero = 0
     call weights(ic, p, zero, st)
     if (.not. st%ok()) return
