@@ -3,9 +3,12 @@
 HDF5 layout: one group per output ``/snapshots/NNNNNN`` (attribute ``time``) holding
 ``position (n,2)``, ``velocity (n,2)``, ``pressure (n)``, ``stress (n,4)`` [sxx, syy,
 sxy, szz], ``material (n)``, ``volume (n)``, ``jacobian (n)`` and ``corners (n,4,2)``
-(CPDI domain corners, counter-clockwise). ``snapshots.xdmf`` is a temporal collection
-of polyvertex grids pointing at those datasets; it is rewritten after every snapshot,
-so it is valid whenever the run stops.
+(CPDI domain corners, counter-clockwise). Runs with incompressible water add the cell
+fields ``grid/pressure``, ``grid/fill`` and ``grid/water`` (ny, nx), x fastest, with
+attributes ``origin`` and ``h``. ``snapshots.xdmf`` is a temporal collection of polyvertex
+grids pointing at the particle datasets, plus (when there are cell fields) a temporal
+collection of 2D co-rectilinear meshes carrying them as cell data; it is rewritten after
+every snapshot, so it is valid whenever the run stops.
 """
 
 from __future__ import annotations
@@ -63,12 +66,22 @@ class SnapshotWriter:
             self.close()
             raise
 
-    def write(self, t: float, fields: dict[str, np.ndarray]) -> None:
+    def write(self, t: float, fields: dict[str, np.ndarray], grid: dict | None = None) -> None:
+        """One snapshot: particle fields, and optionally cell fields ``grid`` = {origin, h,
+        name: array (nx, ny), ...} (stored transposed, x fastest)."""
         name = f"{len(self._times):06d}"
         g = self._grp.create_group(name)
         g.attrs["time"] = t
         for key, arr in fields.items():
             g.create_dataset(key, data=np.ascontiguousarray(arr), compression="gzip", compression_opts=1)
+        if grid is not None:
+            gg = g.create_group("grid")
+            gg.attrs["origin"] = np.asarray(grid["origin"], dtype=float)
+            gg.attrs["h"] = float(grid["h"])
+            for key, arr in grid.items():
+                if key not in ("origin", "h"):
+                    gg.create_dataset(key, data=np.ascontiguousarray(np.asarray(arr).T), compression="gzip",
+                                      compression_opts=1)
         self._f.flush()
         self._times.append((name, t, fields["position"].shape[0]))
         self._write_xdmf(list(fields))
@@ -95,8 +108,37 @@ class SnapshotWriter:
                            f'<DataItem Dimensions="{dims}" NumberType="{ntype}" Precision="{prec}" '
                            f'Format="HDF">{base}/{key}</DataItem></Attribute>')
             out.append("</Grid>")
-        out += ["</Grid>", "</Domain>", "</Xdmf>"]
+        out.append("</Grid>")
+        out += self._grid_xdmf(h5)
+        out += ["</Domain>", "</Xdmf>"]
         write_text_atomic(self.xdmf_path, "\n".join(out) + "\n")
+
+    def _grid_xdmf(self, h5: str) -> list[str]:
+        """The cell fields' temporal collection (2DCoRectMesh; XDMF orders y before x)."""
+        named = [(n, t) for n, t, _ in self._times if "grid" in self._grp[n]]
+        if not named:
+            return []
+        out = ['<Grid Name="cells" GridType="Collection" CollectionType="Temporal">']
+        for name, t in named:
+            gg = self._grp[name]["grid"]
+            keys = [k for k in gg if isinstance(gg[k], h5py.Dataset)]
+            ny, nx = gg[keys[0]].shape
+            ox, oy = gg.attrs["origin"]
+            h = gg.attrs["h"]
+            out.append(f'<Grid Name="c{name}" GridType="Uniform"><Time Value="{t:.9g}"/>')
+            out.append(f'<Topology TopologyType="2DCoRectMesh" Dimensions="{ny + 1} {nx + 1}"/>')
+            out.append('<Geometry GeometryType="ORIGIN_DXDY">'
+                       f'<DataItem Dimensions="2" NumberType="Float" Format="XML">{oy:.9g} {ox:.9g}</DataItem>'
+                       f'<DataItem Dimensions="2" NumberType="Float" Format="XML">{h:.9g} {h:.9g}</DataItem>'
+                       '</Geometry>')
+            for key in keys:
+                ntype, prec = ("Int", "4") if gg[key].dtype.kind == "i" else ("Float", "8")
+                out.append(f'<Attribute Name="{key}" AttributeType="Scalar" Center="Cell">'
+                           f'<DataItem Dimensions="{ny} {nx}" NumberType="{ntype}" Precision="{prec}" '
+                           f'Format="HDF">{h5}:/snapshots/{name}/grid/{key}</DataItem></Attribute>')
+            out.append("</Grid>")
+        out.append("</Grid>")
+        return out
 
     def close(self) -> None:
         if self._f:

@@ -257,7 +257,12 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
                 "position": state["x"], "velocity": state["v"], "pressure": pressure(state["sigma"]),
                 "stress": state["sigma"], "material": parts.mat.astype(np.int32), "volume": state["vol"],
                 "jacobian": state["F"][:, 0] * state["F"][:, 3] - state["F"][:, 1] * state["F"][:, 2],
-                "corners": corners(state["x"], state["r"])})
+                "corners": corners(state["x"], state["r"])}, grid=cell_fields())
+
+    def cell_fields():  # the pressure grid of incompressible water
+        if s["fluid"] != "incompressible":
+            return None
+        return {"origin": case["grid"]["origin"], "h": case["grid"]["cell"], **sim.grid_pressure()}
 
     def save_checkpoint():
         checkpoint.save(ckpt_path, case, parts, sim.get_full_state(),
