@@ -303,13 +303,12 @@ contains
     end subroutine lap
   end subroutine viscosity
 
-  subroutine incomp_step(ic, g, p, flip, gravity, dt, dt_nom, steps, diag, timers, smax, st)
-    !! One semi-implicit step of length dt (dt_nom: the step the flow allows; dt is shorter
-    !! when it lands on a requested time). diag and timers follow cpdi_step's layout.
+  subroutine incomp_step(ic, g, p, flip, gravity, dt, steps, diag, timers, smax, st)
+    !! One semi-implicit step of length dt. diag and timers follow cpdi_step's layout.
     type(incomp_t), intent(inout) :: ic
     type(grid_t), intent(in) :: g
     type(particles_t), intent(inout) :: p
-    real(wp), intent(in) :: flip, gravity(2), dt, dt_nom
+    real(wp), intent(in) :: flip, gravity(2), dt
     integer(int64), intent(in) :: steps
     real(wp), intent(inout) :: diag(:), timers(:)
     real(wp), intent(out) :: smax
@@ -347,17 +346,7 @@ contains
       call st%set(CPDI_ERR_SOLVE, trim(buf))
       return
     end if
-    if (dt < dt_nom*(1.0_wp - 1.0e-9_wp)) then
-      call short_step_pressure(ic, dt, dt_nom, diag, converged)
-      if (.not. converged) then
-        call st%set(CPDI_ERR_SOLVE, 'the pressure solve of a shortened step did not converge; reduce [solver] '// &
-                    'cfl, or raise [solver] cg_max_iterations or cg_tolerance')
-        return
-      end if
-      call toc(timers, 8, t0)
-    end if
     call mac_project(ic%mc, dt, ic%rho)
-    if (dt < dt_nom*(1.0_wp - 1.0e-9_wp)) ic%mc%p = ic%mc%pk   ! report the nominal step's pressure
     where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
       ic%mc%uo = ic%mc%u - ic%mc%uo
     elsewhere
@@ -377,35 +366,6 @@ contains
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
     call toc(timers, 4, t0)
   end subroutine incomp_step
-
-  subroutine short_step_pressure(ic, dt, dt_nom, diag, converged)
-    !! A step shortened to land on a requested time: its pressure removes the divergence the
-    !! transfer left in the velocity at t^n, X = (rho h^2/dt) A^-1 (-div v^n), an impulse
-    !! fixed per step, so p ~ 1/dt as dt -> 0 (a sliver step to an output time showed wall
-    !! pressures of 1e3 rho g H). The step itself uses p; what is reported (pk on return) is
-    !! the pressure the step of length dt_nom would show: p - X (1 - dt/dt_nom). One extra
-    !! solve, on shortened steps only; on return p holds the step's own pressure.
-    type(incomp_t), intent(inout) :: ic
-    real(wp), intent(in) :: dt, dt_nom
-    real(wp), intent(inout) :: diag(:)
-    logical, intent(out) :: converged
-    associate (mc => ic%mc)
-      mc%pk = mc%p
-      mc%us = mc%uo
-      mc%vs = mc%vo
-      call swap(mc%u, mc%us)   ! u, v: the velocity at t^n; us, vs: the step's
-      call swap(mc%v, mc%vs)
-      call mac_walls(mc)
-      call mac_assemble(mc, dt, ic%rho, 0.0_wp)
-      call mac_solve(mc, ic%tol, ic%maxit, converged)
-      diag(15) = diag(15) + real(mc%iters, wp)
-      diag(17) = diag(17) + real(mc%iters, wp)
-      call swap(mc%u, mc%us)
-      call swap(mc%v, mc%vs)
-      mc%p = mc%pk - mc%p*(1.0_wp - dt/dt_nom)   ! the reported pressure
-      call swap(mc%p, mc%pk)                     ! p: the step's own again; pk: the reported one
-    end associate
-  end subroutine short_step_pressure
 
   subroutine volume_correction(ic, dt, diag, converged, timers, t0)
     !! The velocity field (uc, vc) whose divergence is beta (fill - 1) / dt in over-filled

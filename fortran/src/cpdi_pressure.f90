@@ -46,7 +46,6 @@ module cpdi_pressure
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
     real(wp), allocatable :: uc(:), vc(:)    !! volume-correction velocities (advection only)
-    real(wp), allocatable :: us(:), vs(:), pk(:) !! scratch: faces and pressure of a short step's second solve
     integer(ik), allocatable :: uval(:), vval(:) !! 1: face set by the projection; 2, 3: extrapolated
     real(wp), allocatable :: p(:)            !! cell pressure [Pa]
     real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
@@ -70,11 +69,11 @@ contains
     integer :: ierr, n
     n = nn(1)*nn(2)
     if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
-                                        mc%us, mc%vs, mc%pk, mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, &
-                                        mc%ai, mc%aj, mc%pre, mc%r, mc%z, mc%s, mc%q)
-    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), &
-              mc%vc(n), mc%us(n), mc%vs(n), mc%pk(n), mc%uval(n), mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), &
-              mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), mc%z(n), mc%s(n), mc%q(n), stat=ierr)
+                                        mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
+                                        mc%s, mc%q)
+    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
+              mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
+              mc%z(n), mc%s(n), mc%q(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the pressure grid; use a larger cell size')
       return
@@ -93,9 +92,6 @@ contains
     mc%vo = 0.0_wp
     mc%uc = 0.0_wp
     mc%vc = 0.0_wp
-    mc%us = 0.0_wp
-    mc%vs = 0.0_wp
-    mc%pk = 0.0_wp
     mc%uval = 0
     mc%vval = 0
     mc%p = 0.0_wp

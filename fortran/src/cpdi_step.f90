@@ -255,7 +255,7 @@ contains
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt_cap
     type(status_t), intent(inout) :: st
-    real(wp) :: dt, dtc, dt_nom
+    real(wp) :: dt, dtc
     integer(ik) :: bad, fail
     integer(int64) :: t0
     character(len=300) :: buf
@@ -277,7 +277,6 @@ contains
     ! step: its pressure removes the divergence the transfer leaves (a fixed impulse per
     ! step), so a step of dt -> 0 would show a pressure ~ 1/dt (measured: wall pressure
     ! spikes of 1e3 rho g H at the steps that land on output times).
-    dt_nom = dt
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE .and. dt_cap > dt .and. dt_cap < 2.0_wp*dt) dt = 0.5_wp*dt_cap
     dt = min(dt, dt_cap)
     if (.not. (dt > 0.0_wp)) then
@@ -286,7 +285,7 @@ contains
     end if
     proj = s%opt%projection /= PROJ_NONE
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
-      call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, dt_nom, s%steps, s%diag, s%timers, s%smax, st)
+      call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
       if (.not. st%ok()) return
       s%diag(11) = s%smax
       s%dt_last = dt
