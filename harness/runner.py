@@ -287,7 +287,8 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
             t_next = min(n_ser * dt_ser, t_next_out)
             budget = max(1, s["max_steps"] - total_steps)
             w0 = time.perf_counter()
-            steps, t = sim.advance(t_next, max_steps=budget if stop is None else min(budget, piece))
+            steps, t = sim.advance(t_next, max_steps=budget if stop is None else min(budget, piece),
+                                   land=t_next >= t_end * (1 - 1e-12))  # incompressible water lands at t_end only
             total_steps += steps
             if stop is not None and steps:
                 piece = max(1, min(8 * piece, int(STOP_LATENCY_S * steps / max(time.perf_counter() - w0, 1e-9))))
@@ -295,12 +296,16 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
             if not reached and total_steps >= s["max_steps"]:
                 raise CpdiError(2, f"reached solver.max_steps = {s['max_steps']} at t = {t:.6g} s; "
                                    "raise max_steps or shorten t_end")
-            if reached:
+            if reached:  # (incompressible water, which does not land, may have passed more sample times)
                 state = sim.state()
                 n_ser += 1
+                while n_ser * dt_ser < t * (1 - 1e-12):
+                    n_ser += 1
                 sample(state)
                 if t >= t_next_out * (1 - 1e-12):
                     n_out += 1
+                    while n_out * dt_out < t * (1 - 1e-12):
+                        n_out += 1
                     snapshot(state)
             if t >= next_ckpt * (1 - 1e-12) and t < t_end * (1 - 1e-12):
                 save_checkpoint()

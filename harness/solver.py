@@ -261,9 +261,11 @@ class Simulation:
               _particle_array(F, self._n, 4, "F"), float(t))
 
     # -- stepping -----------------------------------------------------------------
-    def advance(self, t_end: float, max_steps: int = 2**31 - 1) -> tuple[int, float]:
-        """Step until time t_end (the last step lands on it) or max_steps; returns (steps, t)."""
-        steps, t = _call("cpdi_advance", self._handle, float(t_end), int(max_steps))
+    def advance(self, t_end: float, max_steps: int = 2**31 - 1, land: bool = True) -> tuple[int, float]:
+        """Step until time t_end (the last step lands on it) or max_steps; returns (steps, t).
+        land=False: incompressible water keeps its own step and passes t_end by less than one
+        step instead of landing with a short step (the weakly compressible model always lands)."""
+        steps, t = _call("cpdi_advance", self._handle, float(t_end), int(max_steps), int(bool(land)))
         return int(steps), float(t)
 
     def stable_dt(self) -> float:

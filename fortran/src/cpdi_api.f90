@@ -386,12 +386,15 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_set_body_force
 
-  subroutine cpdi_advance(handle, t_end, max_steps, nsteps, t, ierr, msg)
+  subroutine cpdi_advance(handle, t_end, max_steps, land, nsteps, t, ierr, msg)
     !! Step until the clock reaches t_end (the last step is shortened to land on it) or
-    !! max_steps steps were taken. Returns the steps taken and the new time.
+    !! max_steps steps were taken. Returns the steps taken and the new time. With land = 0,
+    !! incompressible water does not shorten its steps: the clock passes t_end by less than
+    !! one step (its pressure on a sliver step would be the transfer's impulse over a tiny
+    !! dt); the weakly compressible model always lands.
     integer(c_int), intent(in) :: handle
     real(c_double), intent(in) :: t_end
-    integer(c_int), intent(in) :: max_steps
+    integer(c_int), intent(in) :: max_steps, land
     integer(c_int), intent(out) :: nsteps
     real(c_double), intent(out) :: t
     integer(c_int), intent(out) :: ierr
@@ -407,7 +410,11 @@ contains
     if (st%ok()) then
       eps = 1.0e-12_wp*max(abs(t_end), 1.0e-300_wp)
       do while (s%t < t_end - eps .and. nsteps < max_steps)
-        call sim_step(s, t_end - s%t, st)
+        if (land == 0 .and. s%opt%fluid == FLUID_INCOMPRESSIBLE) then
+          call sim_step(s, huge(1.0_wp), st)
+        else
+          call sim_step(s, t_end - s%t, st)
+        end if
         if (.not. st%ok()) exit
         nsteps = nsteps + 1
       end do

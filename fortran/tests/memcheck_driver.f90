@@ -59,20 +59,20 @@ program memcheck_driver
   call cpdi_set_options(h, [2_c_int, 1_c_int, 1_c_int, 0_c_int, 1_c_int, 0_c_int], &
                         [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options')
-  call cpdi_advance(h, 0.05_c_double, 200, nsteps, t, ierr, msg); call expect_ok('advance')
+  call cpdi_advance(h, 0.05_c_double, 200, 1, nsteps, t, ierr, msg); call expect_ok('advance')
   allocate (xo(2, n), vo(2, n), f(4, n), s(4, n), volo(n), ro(4, n))
   call cpdi_get_state(h, n, xo, vo, f, s, volo, ro, ierr, msg); call expect_ok('state')
   ! nodal projection path
   call cpdi_set_options(h, [2_c_int, 1_c_int, 2_c_int, 0_c_int, 0_c_int, 0_c_int], &
                         [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.1_c_double], ierr, msg); call expect_ok('options nodal')
-  call cpdi_advance(h, 0.06_c_double, 50, nsteps, t, ierr, msg); call expect_ok('advance nodal')
+  call cpdi_advance(h, 0.06_c_double, 50, 1, nsteps, t, ierr, msg); call expect_ok('advance nodal')
   ! checkpoint round trip: full state out, back in, step on; a damaged state is refused
   call cpdi_full_state_size(nprow, nscal, ierr, msg); call expect_ok('full state size')
   allocate (ps(nprow, n), ss(nscal))
   call cpdi_get_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_ok('get full state')
   call cpdi_set_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_ok('set full state')
-  call cpdi_advance(h, 0.065_c_double, 20, nsteps, t, ierr, msg); call expect_ok('advance after restore')
+  call cpdi_advance(h, 0.065_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance after restore')
   ss(1) = -1.0_c_double
   call cpdi_set_full_state(h, nprow, n, nscal, ps, ss, ierr, msg); call expect_error('negative time')
   call cpdi_get_full_state(h, nprow, n - 1, nscal, ps(:, 1:n - 1), ss, ierr, msg); call expect_error('wrong n')
@@ -83,9 +83,9 @@ program memcheck_driver
   call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 1_c_int], &
                         [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 1.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options fixed dt')
-  call cpdi_advance(h, 1.0_c_double, 5, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
+  call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
   call cpdi_free(h, ierr, msg); call expect_ok('free')
-  call cpdi_advance(h, 1.0_c_double, 5, nsteps, t, ierr, msg); call expect_error('freed handle')
+  call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('freed handle')
   deallocate (x, v, m, vol, r, mat, body, xo, vo, f, s, volo, ro)
   print '(a,i0,a)', 'memcheck driver: ', failures, ' failures'
   if (failures > 0) call exit(1)
