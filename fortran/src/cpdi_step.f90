@@ -17,6 +17,7 @@ module cpdi_step
   !! run in `single` (they touch few nodes). Locals of a phase routine are private to each
   !! thread; anything shared lives in sim_t.
   use, intrinsic :: iso_fortran_env, only: int64
+  !$ use omp_lib, only: omp_get_max_threads
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
                          CPDI_ERR_OUTSIDE, CPDI_ERR_JACOBIAN, CPDI_ERR_DOMAIN, CPDI_ERR_CFL
@@ -40,6 +41,12 @@ module cpdi_step
   !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
   !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
   !! 14 viscous dissipation
+  integer(ik), parameter :: MIN_PER_THREAD = 16384
+  !! particles per thread below which a step uses fewer threads: a step has about 20
+  !! barriers, and on the 2-core VM 8k CPDI particles ran 1.4x slower on 2 threads than on 1
+  !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
+  !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
+  !! tests set it to 1 so that their small cases really run on several threads.
   integer(ik), parameter, public :: NTIMER = 7
   !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
   !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress)
@@ -96,6 +103,7 @@ module cpdi_step
     integer(ik) :: cbad(NCHUNK) = 0          !! per-block first failing particle
     real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
     real(wp) :: cext(2, NCHUNK) = 0.0_wp     !! per-block max signal speed, min viscous step
+    integer(ik) :: min_per_thread = MIN_PER_THREAD   !! CPDI_MIN_PER_THREAD in the environment overrides
   end type sim_t
 
   public :: sim_prepare, sim_step, sim_stable_dt
@@ -157,6 +165,11 @@ contains
       if (allocated(s%pmask)) deallocate (s%pmask)
       allocate (s%pmask(s%p%n))
       s%pmask = s%mats(s%p%mat)%project
+    end if
+    call get_environment_variable('CPDI_MIN_PER_THREAD', buf, status=ip)
+    if (ip == 0) then
+      read (buf, *, iostat=ip) s%min_per_thread
+      if (ip /= 0 .or. s%min_per_thread < 1) s%min_per_thread = MIN_PER_THREAD
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
@@ -247,9 +260,11 @@ contains
     type(status_t), intent(inout) :: st
     real(wp) :: dt, dtc
     integer(ik) :: bad, fail
+    integer :: nthr
     integer(int64) :: t0
     character(len=300) :: buf
     logical :: proj
+
 
     dtc = sim_stable_dt(s)
     if (s%opt%fixed_dt == 1) then
@@ -274,7 +289,9 @@ contains
     ! serial pieces run in `single`, timers on the master thread. The locals passed to
     ! step_phases are shared in the region; a failing phase returns from every thread (all
     ! see the same st after the phase's barrier).
-    !$omp parallel default(shared)
+    nthr = 1
+    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread)))
+    !$omp parallel default(shared) num_threads(nthr)
     call step_phases(s, dt, proj, st, bad, fail, buf, t0)
     !$omp end parallel
     if (.not. st%ok()) return
