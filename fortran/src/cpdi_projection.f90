@@ -531,6 +531,7 @@ contains
     integer(ik) :: ip, q, nq, a, ka(4), ia, info, na, it, c, lo, hi
     real(wp) :: xq(2, 4), wq(4), nv(4), mw, acc
     character(len=120) :: buf
+    logical :: ok
 
     na = pr%na
     if (na == 0) return
@@ -559,8 +560,9 @@ contains
       write (buf, '(a,i0,a)') 'nodal projection: banded solve failed (info = ', info, '); use projection = "cell"'
       call st%set(CPDI_ERR_LAPACK, trim(buf))
     end if
-    !$omp end single
-    if (.not. st%ok()) return
+    ok = st%ok()
+    !$omp end single copyprivate(ok)
+    if (.not. ok) return   ! (broadcast: st was set by the single's thread)
     !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)

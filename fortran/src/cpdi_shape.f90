@@ -484,7 +484,7 @@ contains
     integer(ik) :: ip, f, c, lo, hi, span, sp, j
     integer(ik) :: ko(7), k9(9), r9, b0, b1, bspan(CPDI_BATCH)
     real(wp) :: lp(2), wo(7), gxo(7), gyo(7), w9(9), gx9(9), gy9(9)
-    logical :: merged(CPDI_BATCH)
+    logical :: merged(CPDI_BATCH), second
     integer :: ierr
     ! Orphaned worksharing (the step's parallel region, or serial outside one): the per-block
     ! results live in sh%cb (shared) and are combined in a single, in block order.
@@ -568,8 +568,10 @@ contains
         call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
       end if
     end if
-    !$omp end single
-    if (bad == 0 .and. sum(cnov) > 0 .and. st%ok()) then
+    second = bad == 0 .and. sum(cnov) > 0 .and. st%ok()
+    !$omp end single copyprivate(second)
+    ! (the decision is broadcast: bad and st were set by the single's thread)
+    if (second) then
       !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
       do c = 1, NCHUNK
         if (cnov(c) == 0) cycle

@@ -235,6 +235,29 @@ contains
     t0 = t1
   end subroutine toc
 
+  logical function all_ok(st)
+    !! st%ok() as one thread sees it, given to every thread of the region (copyprivate): a
+    !! status set in a `single` by another thread is otherwise not guaranteed to be re-read
+    !! (the compiler may keep a dummy argument's earlier value across the barrier), and
+    !! threads that disagree leave the step at different barriers and hang.
+    type(status_t), intent(in) :: st
+    logical :: ok
+    !$omp single
+    ok = st%ok()
+    !$omp end single copyprivate(ok)
+    all_ok = ok
+  end function all_ok
+
+  integer(ik) function all_int(i)
+    !! i as one thread sees it, given to every thread of the region (see all_ok).
+    integer(ik), intent(in) :: i
+    integer(ik) :: v
+    !$omp single
+    v = i
+    !$omp end single copyprivate(v)
+    all_int = v
+  end function all_int
+
   subroutine tic_master(t0)
     !! tic on the master thread only (inside or outside a parallel region; no barrier).
     integer(int64), intent(inout) :: t0
@@ -314,8 +337,8 @@ contains
     integer(int64), intent(inout) :: t0
     call tic_master(t0)
     call shape_compute(s%g, s%p, s%sh, bad, fail, st)
-    if (.not. st%ok()) return
-    if (bad /= 0) then
+    if (.not. all_ok(st)) return
+    if (all_int(bad) /= 0) then
       !$omp single
       if (fail == SHAPE_FAIL_INVERTED) then
         write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
@@ -338,7 +361,7 @@ contains
     if (proj) then   ! the operator of this step's configuration, for both projections
       call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st, s%sp)
       call toc_master(s, 7, t0)
-      if (.not. st%ok()) return
+      if (.not. all_ok(st)) return
     end if
 
     call p2g(s)
@@ -349,11 +372,11 @@ contains
     call toc_master(s, 4, t0)
     call deformation_update(s, dt, st)
     call toc_master(s, 5, t0)
-    if (.not. st%ok()) return
+    if (.not. all_ok(st)) return
     if (proj) then
       call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
       call toc_master(s, 7, t0)
-      if (.not. st%ok()) return
+      if (.not. all_ok(st)) return
       call projected_deformation(s)
       call toc_master(s, 5, t0)
     end if
@@ -362,7 +385,7 @@ contains
     !$omp end single
     call stress_update(s, st)
     call toc_master(s, 6, t0)
-    if (.not. st%ok()) return
+    if (.not. all_ok(st)) return
     if (proj) then
       call project_mean_stress(s, st)
       call toc_master(s, 7, t0)
