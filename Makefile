@@ -21,7 +21,7 @@ help:
 	@echo "make test          bootstrap, build, run the test suite (Fortran + pytest)"
 	@echo "make verify        bootstrap, build, run every check, write reports/<stamp>/"
 	@echo "make verify-quick  the same at CI resolution"
-	@echo "make bench         performance benchmark -> reports/bench/"
+	@echo "make bench         performance benchmark -> reports/bench/ (BASE=<sha>: compare with that commit)"
 	@echo "make run CASE=cases/x.toml   run one case into runs/<case>/"
 	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
 	@echo "make memcheck      Fortran-only driver under AddressSanitizer + debug flags (leaks, invalid access)"
@@ -79,7 +79,7 @@ verify-quick: build
 	@$(PY) -m harness verify --quick
 
 bench: build
-	@$(PY) -m harness bench
+	@$(PY) -m harness bench $(if $(BASE),--base $(BASE))
 
 run: build
 	@$(PY) -m harness run $(CASE)
@@ -98,7 +98,7 @@ lint: venv
 	@$(VENV)/bin/ruff check harness tests
 
 clean:
-	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so $(EXT_STAMP) runs
+	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so $(EXT_STAMP) runs .bench-base
 
 distclean: clean
 	rm -rf $(VENV) reports/2* reports/latest reports/bench

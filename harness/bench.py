@@ -14,8 +14,18 @@ solver library loaded, with (bytes_per_particle) and without (solver_bytes_per_p
 the harness's own copy of the seeded particles: the second is the solver's particle, shape,
 grid, projection and scheduling arrays.
 
+Threads (issue 24): the 32k CPDI row is also run beside 1 and 2 busy-loop processes (1 and
+2 threads back to back under the same load, LOAD_REPEATS times; the worst 2-thread/1-thread
+wall ratio is gated), the scaling curve runs 1, 2, 4, ... threads up to the cores this
+process may use (harness.available_cores) at 32k and 128k with the parallel efficiency, and
+`--base SHA` builds that commit in a scratch copy (.bench-base/SHA) and interleaves 1-thread
+32k CPDI runs of both builds. The affinity mask, the load average and the OpenMP settings
+are recorded. Gates are printed and stored (bench.json "gates"); like every bench result they
+do not change the exit code (0 unless a run crashed).
+
 Outputs: reports/bench/bench.json (the contract in DESIGN.md), bench.png (particle-updates
-per second against particles, 1 and 2 threads) and phases.png (where a step's time goes).
+per second against particles, 1 and 2 threads), phases.png (where a step's time goes) and
+scaling.png (speed-up against threads).
 """
 
 from __future__ import annotations
@@ -37,6 +47,11 @@ STEPS = {"2k": 400, "8k": 200, "32k": 100, "128k": 50}
 SHAPES = ("mpm", "gimp", "cpdi")
 THREADS = (1, 2)
 REPEATS = 3
+LOAD_REPEATS = 10          # repeats of each loaded pair; the worst ratio is gated
+BASE_REPEATS = 7           # interleaved base/new pairs of `--base`
+GATE_LOAD = {1: 1.3, 2: 2.0}   # busy processes -> max wall(2 threads) / wall(1 thread)
+GATE_SPEEDUP = 1.8         # unloaded 2-thread speed-up at 32k and 128k
+GATE_BASE = 0.95           # 1-thread 32k throughput relative to the base commit
 PROJECTION = "cell"
 PHASES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection")
 
@@ -93,11 +108,11 @@ def measure(size: str, shape: str, steps: int) -> dict:
             "phase_s": timers, "phase_ns_per_update": {k: v / updates * 1e9 for k, v in timers.items()}}
 
 
-def _run_one(size: str, shape: str, threads: int) -> dict:
+def _run_one(size: str, shape: str, threads: int, repo: Path = REPO) -> dict:
     code = ("import json; from harness.bench import measure; "
             f"print(json.dumps(measure({size!r}, {shape!r}, {STEPS[size]})))")
-    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
-    p = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True)
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(repo))
+    p = subprocess.run([sys.executable, "-c", code], cwd=repo, env=env, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"benchmark {size}/{shape}/{threads} thread(s) crashed:\n{p.stderr.strip()}")
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -184,11 +199,154 @@ def _plot_phases(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def main(quick: bool = False) -> int:
+def _busy(n: int) -> list[subprocess.Popen]:
+    """n busy-loop processes (the competing load of the threads rows)."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    time.sleep(0.5)  # let them get scheduled
+    return hogs
+
+
+def _stop(hogs: list[subprocess.Popen]) -> None:
+    for h in hogs:
+        h.kill()
+        h.wait()
+
+
+def _machine() -> dict:
+    from harness import available_cores
+    return {"affinity": sorted(os.sched_getaffinity(0)), "available_cores": available_cores(),
+            "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg()),
+            "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY"), "GOMP_SPINCOUNT": os.environ.get("GOMP_SPINCOUNT"),
+            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
+
+
+def loaded_rows(repeats: int, say) -> list[dict]:
+    """32k CPDI on 1 and 2 threads beside 1 and 2 busy processes; per repeat both thread
+    counts run back to back under the same load (their order alternates), and the row keeps
+    every ratio wall(2) / wall(1) and the worst."""
+    out = []
+    for busy in (1, 2):
+        pairs = []
+        for r in range(repeats):
+            hogs = _busy(busy)
+            try:
+                load = os.getloadavg()[0]
+                order = (1, 2) if r % 2 == 0 else (2, 1)
+                runs = {t: _run_one("32k", "cpdi", t) for t in order}
+            finally:
+                _stop(hogs)
+            pairs.append({"wall_1": runs[1]["wall_s"], "wall_2": runs[2]["wall_s"],
+                          "ratio": runs[2]["wall_s"] / runs[1]["wall_s"], "loadavg_1min": load})
+        worst = max(p["ratio"] for p in pairs)
+        row = {"name": "dam_break_32k_loaded", "size": "32k", "shape": "cpdi", "busy_processes": busy,
+               "repeats": repeats, "pairs": pairs, "worst_ratio_2_over_1": worst,
+               "median_ratio_2_over_1": statistics.median(p["ratio"] for p in pairs),
+               "gate": GATE_LOAD[busy], "pass": worst <= GATE_LOAD[busy]}
+        say(f"  32k cpdi beside {busy} busy process(es): wall 2T/1T worst {worst:.2f} median "
+            f"{row['median_ratio_2_over_1']:.2f} over {repeats} pairs (1T "
+            + ",".join(f"{p['wall_1']:.2f}" for p in pairs) + " / 2T " + ",".join(f"{p['wall_2']:.2f}" for p in pairs)
+            + f" s)  gate <= {GATE_LOAD[busy]}: {'PASS' if row['pass'] else 'FAIL'}")
+        out.append(row)
+    return out
+
+
+def scaling_rows(rows: list[dict], sizes: list[str], say) -> list[dict]:
+    """Speed-up and parallel efficiency on 1, 2, 4, ... threads up to the available cores
+    (the 1- and 2-thread medians come from the main rows; more threads run here)."""
+    from harness import available_cores
+    ncores = available_cores()
+    counts = [1]
+    while counts[-1] * 2 <= ncores:
+        counts.append(counts[-1] * 2)
+    if counts[-1] != ncores:
+        counts.append(ncores)
+    out = []
+    for size in sizes:
+        med = {}
+        for t in counts:
+            have = [x for x in rows if x["shape"] == "cpdi" and x["size"] == size and x["threads"] == t]
+            if have:
+                med[t] = have[0]["particle_updates_per_s"]
+            else:
+                med[t] = statistics.median(_run_one(size, "cpdi", t)["particle_updates_per_s"] for _ in range(REPEATS))
+        for t in counts:
+            sp = med[t] / med[1]
+            out.append({"size": size, "shape": "cpdi", "threads": t, "particle_updates_per_s": med[t],
+                        "speedup": sp, "efficiency": sp / t})
+        say(f"  scaling {size} cpdi: " + "  ".join(f"{t}T {med[t] / 1e6:.2f} M/s x{med[t] / med[1]:.2f} "
+                                                   f"eff {med[t] / med[1] / t:.0%}" for t in counts))
+    return out
+
+
+def prepare_base(sha: str) -> Path:
+    """A scratch copy of this repository at commit sha (.bench-base/<sha>), built with this
+    checkout's virtual environment."""
+    full = subprocess.run(["git", "rev-parse", "--verify", f"{sha}^{{commit}}"], cwd=REPO, capture_output=True,
+                          text=True)
+    if full.returncode != 0:
+        raise RuntimeError(f"--base {sha}: not a commit of this repository")
+    sha = full.stdout.strip()
+    d = REPO / ".bench-base" / sha
+    if not (d / "harness" / ".ext-built").exists():
+        if not d.exists():
+            subprocess.run(["git", "clone", "-q", str(REPO), str(d)], check=True)
+            subprocess.run(["git", "checkout", "-q", sha], cwd=d, check=True)
+            (d / ".venv").symlink_to(REPO / ".venv")
+        p = subprocess.run(["make", "build"], cwd=d, capture_output=True, text=True)
+        if p.returncode != 0:
+            raise RuntimeError(f"--base {sha}: the base did not build:\n{p.stdout[-2000:]}{p.stderr[-2000:]}")
+    return d
+
+
+def base_rows(sha: str, repeats: int, say) -> dict:
+    """1-thread 32k CPDI of the base commit and of this checkout, interleaved."""
+    d = prepare_base(sha)
+    base, new = [], []
+    for r in range(repeats):
+        for which in (("base", "new") if r % 2 == 0 else ("new", "base")):
+            x = _run_one("32k", "cpdi", 1, d if which == "base" else REPO)["particle_updates_per_s"]
+            (base if which == "base" else new).append(x)
+    ratio = statistics.median(new) / statistics.median(base)
+    row = {"base": d.name, "size": "32k", "shape": "cpdi", "threads": 1, "repeats": repeats,
+           "base_particle_updates_per_s": base, "new_particle_updates_per_s": new,
+           "ratio_new_over_base": ratio, "pair_ratios": [n / b for n, b in zip(new, base, strict=True)],
+           "gate": GATE_BASE, "pass": ratio >= GATE_BASE}
+    say(f"  base {d.name[:12]}: 1T 32k cpdi new/base {ratio:.3f} (median of {repeats} interleaved; base "
+        + ",".join(f"{x / 1e6:.2f}" for x in base) + " new " + ",".join(f"{x / 1e6:.2f}" for x in new)
+        + f" M/s)  gate >= {GATE_BASE}: {'PASS' if row['pass'] else 'FAIL'}")
+    return row
+
+
+def _plot_scaling(scal: list[dict], path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from harness import plots  # noqa: F401
+
+    fig, ax = plt.subplots(figsize=(5.6, 4.2))
+    tmax = max(x["threads"] for x in scal)
+    ax.plot([1, tmax], [1, tmax], "k:", label="ideal")
+    for i, size in enumerate(sorted({x["size"] for x in scal}, key=lambda z: SIZES[z])):
+        r = [x for x in scal if x["size"] == size]
+        ax.plot([x["threads"] for x in r], [x["speedup"] for x in r], "-o", color=f"C{i}", label=f"CPDI {size}")
+    ax.set_xlabel("threads")
+    ax.set_ylabel("speed-up over 1 thread (median)")
+    ax.set_title("Dam break, cell projection: scaling")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(quick: bool = False, base: str | None = None) -> int:
     from harness import provenance
 
     sizes = ["2k", "8k"] if quick else list(SIZES)
     OUT.mkdir(parents=True, exist_ok=True)
+    machine_start = _machine()
+    print(f"machine: affinity {machine_start['affinity']} (available cores {machine_start['available_cores']}), "
+          f"load average {' '.join(f'{x:.2f}' for x in machine_start['loadavg'])}, OMP_WAIT_POLICY "
+          f"{machine_start['OMP_WAIT_POLICY']}, GOMP_SPINCOUNT {machine_start['GOMP_SPINCOUNT']}")
     rows = []
     try:
         from tqdm import tqdm
@@ -223,13 +381,38 @@ def main(quick: bool = False) -> int:
         bar.close()
     from harness import bench_water
 
+    say = print
+    try:
+        loaded = loaded_rows(3 if quick else LOAD_REPEATS, say)
+        scal = scaling_rows(rows, ["8k"] if quick else ["32k", "128k"], say)
+        based = base_rows(base, 3 if quick else BASE_REPEATS, say) if base else None
+        water = bench_water.run(quick)
+    except RuntimeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    gates = {f"loaded_{r['busy_processes']}busy_worst_ratio": {"value": r["worst_ratio_2_over_1"], "max": r["gate"],
+                                                               "pass": r["pass"]} for r in loaded}
+    for x in scal:
+        if x["threads"] == 2 and x["size"] in ("32k", "128k"):
+            gates[f"speedup_2threads_{x['size']}"] = {"value": x["speedup"], "min": GATE_SPEEDUP,
+                                                      "pass": x["speedup"] >= GATE_SPEEDUP}
+    if based:
+        gates["base_ratio_1thread_32k"] = {"value": based["ratio_new_over_base"], "min": GATE_BASE,
+                                           "pass": based["pass"]}
+    gates["water_incompressible_speedup_real_k"] = {"value": water[2]["speedup_of_incompressible"], "min": 20.0,
+                                                    "pass": water[2]["speedup_of_incompressible"] >= 20.0}
+    for k, g in gates.items():
+        bound = f"<= {g['max']}" if "max" in g else f">= {g['min']}"
+        print(f"gate {k}: {g['value']:.3f} ({bound}) {'PASS' if g['pass'] else 'FAIL'}")
     data = {"cases": rows, "summary": summary(rows), "repeats": REPEATS, "projection": PROJECTION,
             "provenance": provenance.collect(REPO, REPO / "build"), "quick": quick,
-            "water_models": bench_water.run(quick)}
+            "machine": {"start": machine_start, "end": _machine()}, "loaded": loaded, "scaling": scal,
+            "base": based, "gates": gates, "water_models": water}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")
     _plot(rows, OUT / "bench.png")
     _plot_phases(rows, OUT / "phases.png")
+    _plot_scaling(scal, OUT / "scaling.png")
     targets = ", ".join(f"{k} = {v:.3g}" for k, v in data["summary"].items() if v is not None)
     print("summary: " + (targets or "the issue's targets need the 32k and 128k rows (run without --quick)"))
-    print(f"wrote {OUT / 'bench.json'}, {OUT / 'bench.png'} and {OUT / 'phases.png'}")
+    print(f"wrote {OUT / 'bench.json'}, {OUT / 'bench.png'}, {OUT / 'phases.png'} and {OUT / 'scaling.png'}")
     return 0

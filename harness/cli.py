@@ -102,7 +102,7 @@ def cmd_gate(args) -> int:
 def cmd_bench(args) -> int:
     from harness import bench
 
-    return bench.main(quick=args.quick)
+    return bench.main(quick=args.quick, base=args.base)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -137,6 +137,8 @@ def parser() -> argparse.ArgumentParser:
     gt.set_defaults(func=cmd_gate)
     b = sub.add_parser("bench", help="performance benchmark")
     b.add_argument("--quick", action="store_true")
+    b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "
+                   "32k CPDI throughput, interleaved")
     b.set_defaults(func=cmd_bench)
     return p
 

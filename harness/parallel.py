@@ -17,11 +17,13 @@ from typing import Any
 
 
 def pmap(fn: Callable[..., Any], items: Iterable[Any], workers: int | None = None) -> list[Any]:
-    """[fn(*item) for item in items], in up to `workers` processes (default: the machine's cores).
+    """[fn(*item) for item in items], in up to `workers` processes (default: the cores this process may use).
     fn must be a module-level function (it is pickled to the workers). Exceptions inside fn are
     returned as values, not raised, so one failed run does not lose the others."""
     items = list(items)
-    workers = min(workers or os.cpu_count() or 1, len(items)) or 1
+    from harness import available_cores
+
+    workers = min(workers or available_cores(), len(items)) or 1
     if workers == 1:
         return [_safe(fn, it) for it in items]
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("forkserver"),

@@ -64,6 +64,7 @@ module cpdi_projection
     type(strips_t) :: sp                 !! own scatter colouring of the cell assembly
     logical :: own = .true.              !! cell scatters use sp (no colouring was given)
     logical :: massed = .false.          !! hd holds the cell masses of this operator
+    integer(ik) :: cspan(NCHUNK) = 1     !! per block: tallest span of cell rows (setup_cell)
   end type projection_t
 
   public :: projection_alloc, projection_setup, projection_apply, project_scalar, quadrature
@@ -150,12 +151,18 @@ contains
     logical, intent(in) :: mask(:)
     type(status_t), intent(inout) :: st
     type(strips_t), intent(in), optional :: sp
-    pr%mode = mode
+    ! Orphaned worksharing: every thread of the step's parallel region calls this (and
+    ! projection_apply); outside a parallel region they run serially.
     if (mode == PROJ_CELL) then
       call setup_cell(pr, shape, g, p, .not. present(sp))
     else if (mode == PROJ_NODAL) then
+      !$omp single
       call setup_nodal(pr, shape, g, p, mask, st)
+      !$omp end single
     end if
+    !$omp single
+    pr%mode = mode
+    !$omp end single
   end subroutine projection_setup
 
   subroutine projection_apply(pr, shape, g, p, mask, val, st, sp)
@@ -175,7 +182,9 @@ contains
       else if (present(sp)) then
         call apply_cell(pr, sp, p, mask, val)
       else
+        !$omp single
         call st%set(CPDI_ERR_STATE, 'projection_apply: the operator was set up with a colouring; pass it')
+        !$omp end single
       end if
     else if (pr%mode == PROJ_NODAL) then
       call apply_nodal(pr, shape, g, p, mask, val, st)
@@ -204,18 +213,20 @@ contains
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: own
-    integer(ik) :: c, lo, hi, span
+    integer(ik) :: c, lo, hi
+    !$omp single
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
-    span = 1
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) reduction(max:span)
-    do c = 1, NCHUNK
-      call chunk_range(c, p%n, lo, hi)
-      call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, span)
-    end do
-    !$omp end parallel do
-    if (own) call strips_build(pr%sp, pr%row, span)
     pr%own = own
     pr%massed = .false.
+    !$omp end single
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
+    do c = 1, NCHUNK
+      call chunk_range(c, p%n, lo, hi)
+      pr%cspan(c) = 1
+      call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, pr%cspan(c))
+    end do
+    !$omp end do
+    if (own) call strips_build(pr%sp, pr%row, maxval(pr%cspan))
   end subroutine setup_cell
 
   subroutine locate_block(lo, hi, shape, x, r, r0, gorig, rh, nn, qc, row, span)
@@ -256,20 +267,21 @@ contains
     integer(ik) :: colour, b, c
     real(wp) :: wq
     wq = 1.0_wp/real(pr%nq, wp)
-    !$omp parallel do schedule(static) default(shared) private(c)
+    !$omp do schedule(static) private(c)
     do c = 1, size(acc)
       acc(c) = 0.0_wp
     end do
-    !$omp end parallel do
+    !$omp end do nowait
     if (present(mass)) then
-      !$omp parallel do schedule(static) default(shared) private(c)
+      !$omp do schedule(static) private(c)
       do c = 1, size(mass)
         mass(c) = 0.0_wp
       end do
-      !$omp end parallel do
+      !$omp end do nowait
     end if
+    !$omp barrier
     do colour = 1, 2
-      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
+      !$omp do schedule(dynamic, 1) private(b)
       do b = colour, sp%nstrip, 2
         if (present(mass)) then
           call scatter_strip_mass(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, &
@@ -278,14 +290,14 @@ contains
           call scatter_strip(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, acc)
         end if
       end do
-      !$omp end parallel do
+      !$omp end do
     end do
     if (.not. present(mass)) return
-    !$omp parallel do schedule(static) default(shared) private(c)
+    !$omp do schedule(static) private(c)
     do c = 1, size(mass)
       if (mass(c) > 0.0_wp) mass(c) = 1.0_wp/mass(c)   ! stored as 1 / mass
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine scatter_cell
 
   subroutine scatter_strip(perm, nq, qc, pm, mask, wq, val, acc)
@@ -338,14 +350,16 @@ contains
       call scatter_cell(pr, sp, p, mask, val, pr%rhs)
     else
       call scatter_cell(pr, sp, p, mask, val, pr%rhs, pr%hd)
+      !$omp single
       pr%massed = .true.
+      !$omp end single nowait
     end if
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       call gather_block(lo, hi, pr%nq, pr%qc, mask, pr%rhs, pr%hd, val)
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine apply_cell
 
   subroutine gather_block(lo, hi, nq, qc, mask, rhs, rhd, val)
@@ -517,9 +531,11 @@ contains
     integer(ik) :: ip, q, nq, a, ka(4), ia, info, na, it, c, lo, hi
     real(wp) :: xq(2, 4), wq(4), nv(4), mw, acc
     character(len=120) :: buf
+    logical :: ok
 
     na = pr%na
     if (na == 0) return
+    !$omp single
     pr%rhs(1:na) = 0.0_wp
     do ip = 1, p%n
       if (.not. mask(ip)) cycle
@@ -543,9 +559,11 @@ contains
     if (info /= 0) then
       write (buf, '(a,i0,a)') 'nodal projection: banded solve failed (info = ', info, '); use projection = "cell"'
       call st%set(CPDI_ERR_LAPACK, trim(buf))
-      return
     end if
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
+    ok = st%ok()
+    !$omp end single copyprivate(ok)
+    if (.not. ok) return   ! (broadcast: st was set by the single's thread)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
       do ip = lo, hi
@@ -561,7 +579,7 @@ contains
         val(ip) = acc
       end do
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine apply_nodal
 
   pure subroutine corner_nodes(g, x, k, nv)

@@ -36,6 +36,7 @@ module cpdi_schedule
     integer(ik), allocatable :: perm(:)      !! particles ordered strip by strip (n)
     integer(ik), allocatable :: start(:)     !! first position of each strip in perm (nrow + 2)
     integer(ik), allocatable :: next(:, :)   !! per strip and block: count, then fill pointer (nrow + 1, NCHUNK)
+    integer(ik) :: cb(3, NCHUNK) = 0         !! per block: highest strip, lowest row, highest row
   end type strips_t
 
   public :: strips_alloc, strips_build, chunk_range
@@ -70,28 +71,28 @@ contains
     !! its particles per strip, the offsets follow strip by strip and, within a strip,
     !! block by block, and each block fills its positions in index order. perm is the one
     !! of a serial stable sort, at any thread count.
+    !! Orphaned worksharing: called by every thread of the step's parallel region (or
+    !! serially outside one); the per-block maxima and minima are reduced in a single.
     type(strips_t), intent(inout) :: sp
     integer(ik), intent(in) :: row(:)
     integer(ik), intent(in) :: span
-    integer(ik) :: b, c, lo, hi, ncap, nstrip, rlo, rhi, pos, cnt, width
+    integer(ik) :: b, c, lo, hi, ncap, pos, cnt, width
     ncap = size(sp%start) - 1
     width = max(span, 1)
-    sp%width = width
-    nstrip = 0
-    rlo = huge(1_ik)
-    rhi = -1
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) &
-    !$omp reduction(max:nstrip, rhi) reduction(min:rlo)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, size(row, kind=ik), lo, hi)
-      call count_block(lo, hi, row, width, ncap, sp%next(:, c), nstrip, rlo, rhi)
+      sp%cb(:, c) = [0_ik, huge(1_ik), -1_ik]
+      call count_block(lo, hi, row, width, ncap, sp%next(:, c), sp%cb(1, c), sp%cb(2, c), sp%cb(3, c))
     end do
-    !$omp end parallel do
-    sp%nstrip = nstrip
-    sp%rlo = rlo
-    sp%rhi = rhi
+    !$omp end do
+    !$omp single
+    sp%width = width
+    sp%nstrip = maxval(sp%cb(1, :))
+    sp%rlo = minval(sp%cb(2, :))
+    sp%rhi = maxval(sp%cb(3, :))
     pos = 1
-    do b = 1, nstrip
+    do b = 1, sp%nstrip
       sp%start(b) = pos
       do c = 1, NCHUNK
         cnt = sp%next(b, c)
@@ -99,13 +100,14 @@ contains
         pos = pos + cnt
       end do
     end do
-    sp%start(nstrip + 1) = pos
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
+    sp%start(sp%nstrip + 1) = pos
+    !$omp end single
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, size(row, kind=ik), lo, hi)
       call fill_block(lo, hi, row, width, ncap, sp%next(:, c), sp%perm)
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine strips_build
 
   pure subroutine count_block(lo, hi, row, width, ncap, cnt, nstrip, rlo, rhi)

@@ -52,6 +52,8 @@ module cpdi_shape
     real(wp), allocatable :: w(:, :), gx(:, :), gy(:, :)
     integer(ik), allocatable :: pidx(:, :)            !! overflow pool: node indices
     real(wp), allocatable :: pw(:, :), pgx(:, :), pgy(:, :)  !! overflow pool: weights, gradients
+    integer(ik) :: cb(5, NCHUNK) = 0       !! per block (shape_compute): first failing particle, its cause,
+                                           !! pool columns needed, first pool column, tallest span
   end type shape_t
 
   public :: shape_slots, shape_alloc, shape_compute, shape_count, shape_slot, gimp_1d
@@ -466,7 +468,8 @@ contains
   end subroutine clear
 
   subroutine shape_compute(g, p, sh, bad, fail, st)
-    !! Weights of every particle (OpenMP over fixed particle blocks). On failure, `bad` is
+    !! Weights of every particle (OpenMP over fixed particle blocks; orphaned worksharing, so
+    !! every thread of a parallel region calls it, and bad, fail must be shared). On failure, `bad` is
     !! the lowest failing particle and `fail` its SHAPE_FAIL_* cause; otherwise bad = 0.
     !! Also sets each stencil's first node row and the tallest span (for the strips).
     !! CPDI particles that need slots 10..16 are counted per block in the first pass; after
@@ -478,19 +481,22 @@ contains
     type(shape_t), intent(inout) :: sh
     integer(ik), intent(out) :: bad, fail
     type(status_t), intent(inout) :: st
-    integer(ik) :: ip, f, c, lo, hi, span, sp, j, cbad(NCHUNK), cfail(NCHUNK), cnov(NCHUNK), col(NCHUNK)
+    integer(ik) :: ip, f, c, lo, hi, span, sp, j
     integer(ik) :: ko(7), k9(9), r9, b0, b1, bspan(CPDI_BATCH)
     real(wp) :: lp(2), wo(7), gxo(7), gyo(7), w9(9), gx9(9), gy9(9)
-    logical :: merged(CPDI_BATCH)
+    logical :: merged(CPDI_BATCH), second
     integer :: ierr
-    span = 1
-    cbad = 0
-    cfail = SHAPE_FAIL_NONE
-    cnov = 0
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, &
-    !$omp bspan, merged) reduction(max:span)
+    ! Orphaned worksharing (the step's parallel region, or serial outside one): the per-block
+    ! results live in sh%cb (shared) and are combined in a single, in block order.
+    associate (cbad => sh%cb(1, :), cfail => sh%cb(2, :), cnov => sh%cb(3, :), col => sh%cb(4, :), &
+               cspan => sh%cb(5, :))
+    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, bspan, merged, span)
     do c = 1, NCHUNK
       call chunk_range(c, p%n, lo, hi)
+      span = 1
+      cbad(c) = 0
+      cfail(c) = SHAPE_FAIL_NONE
+      cnov(c) = 0
       if (sh%kind == SHAPE_CPDI) then
         do b0 = lo, hi, CPDI_BATCH
           b1 = min(b0 + CPDI_BATCH - 1, hi)
@@ -515,6 +521,7 @@ contains
             end if
           end do
         end do
+        cspan(c) = span
         cycle
       end if
       do ip = lo, hi
@@ -535,9 +542,11 @@ contains
           cfail(c) = f
         end if
       end do
+      cspan(c) = span
     end do
-    !$omp end parallel do
-    sh%span = span
+    !$omp end do
+    !$omp single
+    sh%span = maxval(cspan)
     bad = 0
     fail = SHAPE_FAIL_NONE
     do c = 1, NCHUNK
@@ -548,30 +557,36 @@ contains
       end if
     end do
     if (bad /= 0) sh%ovf = 0   ! no half-numbered pool left behind
-    if (bad /= 0 .or. sum(cnov) == 0) return
-    col(1) = 1
-    do c = 2, NCHUNK
-      col(c) = col(c - 1) + cnov(c - 1)
-    end do
-    call pool_reserve(sh, sum(cnov), ierr)
-    if (ierr /= 0) then
-      sh%ovf = 0
-      call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
-      return
-    end if
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
-    do c = 1, NCHUNK
-      if (cnov(c) == 0) cycle
-      call chunk_range(c, p%n, lo, hi)
-      j = col(c)
-      do ip = lo, hi
-        if (sh%ovf(ip) == 0) cycle
-        call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), k9, w9, gx9, gy9, sh%pidx(:, j), sh%pw(:, j), &
-                            sh%pgx(:, j), sh%pgy(:, j), r9, sp, f)
-        sh%ovf(ip) = j
-        j = j + 1
+    if (bad == 0 .and. sum(cnov) > 0) then
+      col(1) = 1
+      do c = 2, NCHUNK
+        col(c) = col(c - 1) + cnov(c - 1)
       end do
-    end do
-    !$omp end parallel do
+      call pool_reserve(sh, sum(cnov), ierr)
+      if (ierr /= 0) then
+        sh%ovf = 0
+        call st%set(CPDI_ERR_ALLOC, 'could not allocate the CPDI overflow slots; use fewer particles')
+      end if
+    end if
+    second = bad == 0 .and. sum(cnov) > 0 .and. st%ok()
+    !$omp end single copyprivate(second)
+    ! (the decision is broadcast: bad and st were set by the single's thread)
+    if (second) then
+      !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
+      do c = 1, NCHUNK
+        if (cnov(c) == 0) cycle
+        call chunk_range(c, p%n, lo, hi)
+        j = col(c)
+        do ip = lo, hi
+          if (sh%ovf(ip) == 0) cycle
+          call shape_cpdi_one(g, p%x(:, ip), p%r(:, ip), k9, w9, gx9, gy9, sh%pidx(:, j), sh%pw(:, j), &
+                              sh%pgx(:, j), sh%pgy(:, j), r9, sp, f)
+          sh%ovf(ip) = j
+          j = j + 1
+        end do
+      end do
+      !$omp end do
+    end if
+    end associate
   end subroutine shape_compute
 end module cpdi_shape

@@ -8,11 +8,16 @@ module cpdi_step
   !! eventually invert) their CPDI domains without physical meaning.
   !! Diagnostics are accumulated inside the same loops; nothing is allocated per step.
   !!
-  !! OpenMP: every particle loop runs over the fixed blocks of cpdi_schedule (gathers,
-  !! reductions summed block by block in a fixed order) and every scatter to the grid over
-  !! its two-colour strips, so a run gives the same bits at any thread count. Node loops
-  !! are plain parallel loops. Contact and the walls are serial (they touch few nodes).
+  !! OpenMP: one parallel region per step (sim_step); the phases are orphaned worksharing
+  !! constructs, so they also run serially when called outside a region (sim_prepare).
+  !! Every particle loop runs over the fixed blocks of cpdi_schedule (gathers, reductions
+  !! summed block by block in a fixed order, max/min per block) and every scatter to the
+  !! grid over its two-colour strips, so a run gives the same bits at any thread count.
+  !! Node loops are static worksharing loops. Contact, walls, reductions and error scans
+  !! run in `single` (they touch few nodes). Locals of a phase routine are private to each
+  !! thread; anything shared lives in sim_t.
   use, intrinsic :: iso_fortran_env, only: int64
+  !$ use omp_lib, only: omp_get_max_threads
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_NAN, &
                          CPDI_ERR_OUTSIDE, CPDI_ERR_JACOBIAN, CPDI_ERR_DOMAIN, CPDI_ERR_CFL
@@ -40,6 +45,12 @@ module cpdi_step
   !! 14 viscous dissipation; incompressible water: 15 CG iterations and 16 relative
   !! residual of the last pressure solve, 17 CG iterations of all steps, 18 work of gravity
   !! on the volume correction's displacements (not in 8: the correction is no flow)
+  integer(ik), parameter :: MIN_PER_THREAD = 16384
+  !! particles per thread below which a step uses fewer threads: a step has about 20
+  !! barriers, and on the 2-core VM 8k CPDI particles ran 1.4x slower on 2 threads than on 1
+  !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
+  !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
+  !! tests set it to 1 so that their small cases really run on several threads.
   integer(ik), parameter, public :: NTIMER = 8
   !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
   !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
@@ -98,6 +109,8 @@ module cpdi_step
     real(wp) :: red(6, NCHUNK) = 0.0_wp      !! per-block partial sums of the reductions
     integer(ik) :: cbad(NCHUNK) = 0          !! per-block first failing particle
     real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
+    real(wp) :: cext(2, NCHUNK) = 0.0_wp     !! per-block max signal speed, min viscous step
+    integer(ik) :: min_per_thread = MIN_PER_THREAD   !! CPDI_MIN_PER_THREAD in the environment overrides
   end type sim_t
 
   public :: sim_prepare, sim_step, sim_stable_dt
@@ -163,6 +176,11 @@ contains
       if (allocated(s%pmask)) deallocate (s%pmask)
       allocate (s%pmask(s%p%n))
       s%pmask = s%mats(s%p%mat)%project
+    end if
+    call get_environment_variable('CPDI_MIN_PER_THREAD', buf, status=ip)
+    if (ip == 0) then
+      read (buf, *, iostat=ip) s%min_per_thread
+      if (ip /= 0 .or. s%min_per_thread < 1) s%min_per_thread = MIN_PER_THREAD
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
     s%diag(10) = sum(s%p%m)
@@ -250,6 +268,47 @@ contains
     t0 = t1
   end subroutine toc
 
+  logical function all_ok(st)
+    !! st%ok() as one thread sees it, given to every thread of the region (copyprivate): a
+    !! status set in a `single` by another thread is otherwise not guaranteed to be re-read
+    !! (the compiler may keep a dummy argument's earlier value across the barrier), and
+    !! threads that disagree leave the step at different barriers and hang.
+    type(status_t), intent(in) :: st
+    logical :: ok
+    !$omp single
+    ok = st%ok()
+    !$omp end single copyprivate(ok)
+    all_ok = ok
+  end function all_ok
+
+  integer(ik) function all_int(i)
+    !! i as one thread sees it, given to every thread of the region (see all_ok).
+    integer(ik), intent(in) :: i
+    integer(ik) :: v
+    !$omp single
+    v = i
+    !$omp end single copyprivate(v)
+    all_int = v
+  end function all_int
+
+  subroutine tic_master(t0)
+    !! tic on the master thread only (inside or outside a parallel region; no barrier).
+    integer(int64), intent(inout) :: t0
+    !$omp master
+    call tic(t0)
+    !$omp end master
+  end subroutine tic_master
+
+  subroutine toc_master(s, slot, t0)
+    !! toc on the master thread only: the phases end in barriers, so its clock spans a phase.
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: slot
+    integer(int64), intent(inout) :: t0
+    !$omp master
+    call toc(s, slot, t0)
+    !$omp end master
+  end subroutine toc_master
+
   subroutine sim_step(s, dt_cap, st)
     !! Advance by one explicit step of at most dt_cap.
     type(sim_t), intent(inout) :: s
@@ -257,9 +316,11 @@ contains
     type(status_t), intent(inout) :: st
     real(wp) :: dt, dtc
     integer(ik) :: bad, fail
+    integer :: nthr
     integer(int64) :: t0
     character(len=300) :: buf
     logical :: proj
+
 
     dtc = sim_stable_dt(s)
     if (s%opt%fixed_dt == 1) then
@@ -295,10 +356,34 @@ contains
       return
     end if
 
-    call tic(t0)
-    call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+    ! One parallel region per step: every phase is orphaned worksharing (cpdi_schedule),
+    ! serial pieces run in `single`, timers on the master thread. The locals passed to
+    ! step_phases are shared in the region; a failing phase returns from every thread (all
+    ! see the same st after the phase's barrier).
+    nthr = 1
+    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread)))
+    !$omp parallel default(shared) num_threads(nthr)
+    call step_phases(s, dt, proj, st, bad, fail, buf, t0)
+    !$omp end parallel
     if (.not. st%ok()) return
-    if (bad /= 0) then
+    call advance_clock(s, dt)
+  end subroutine sim_step
+
+  subroutine step_phases(s, dt, proj, st, bad, fail, buf, t0)
+    !! The phases of sim_step, called by every thread of its parallel region. bad, fail,
+    !! buf and t0 are sim_step's (shared) work variables.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    logical, intent(in) :: proj
+    type(status_t), intent(inout) :: st
+    integer(ik), intent(inout) :: bad, fail
+    character(len=*), intent(inout) :: buf
+    integer(int64), intent(inout) :: t0
+    call tic_master(t0)
+    call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+    if (.not. all_ok(st)) return
+    if (all_int(bad) /= 0) then
+      !$omp single
       if (fail == SHAPE_FAIL_INVERTED) then
         write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
           ' at (', s%p%x(:, bad), ') is inverted (r1 x r2 <= 0); reduce cfl or refine the grid'
@@ -309,44 +394,47 @@ contains
           'or enable domain_scaling for stretched CPDI domains'
         call st%set(CPDI_ERR_OUTSIDE, trim(buf))
       end if
+      !$omp end single
       return
     end if
     call strips_build(s%sp, s%sh%row, s%sh%span)
+    !$omp single
     call node_range(s)
-    call toc(s, 1, t0)
+    !$omp end single
+    call toc_master(s, 1, t0)
     if (proj) then   ! the operator of this step's configuration, for both projections
       call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st, s%sp)
-      call toc(s, 7, t0)
-      if (.not. st%ok()) return
+      call toc_master(s, 7, t0)
+      if (.not. all_ok(st)) return
     end if
 
     call p2g(s)
-    call toc(s, 2, t0)
+    call toc_master(s, 2, t0)
     call grid_update(s, dt)
-    call toc(s, 3, t0)
+    call toc_master(s, 3, t0)
     call g2p(s, dt)
-    call toc(s, 4, t0)
+    call toc_master(s, 4, t0)
     call deformation_update(s, dt, st)
-    call toc(s, 5, t0)
-    if (.not. st%ok()) return
+    call toc_master(s, 5, t0)
+    if (.not. all_ok(st)) return
     if (proj) then
       call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
-      call toc(s, 7, t0)
-      if (.not. st%ok()) return
+      call toc_master(s, 7, t0)
+      if (.not. all_ok(st)) return
       call projected_deformation(s)
-      call toc(s, 5, t0)
+      call toc_master(s, 5, t0)
     end if
+    !$omp single
     s%dt_last = dt
+    !$omp end single
     call stress_update(s, st)
-    call toc(s, 6, t0)
-    if (.not. st%ok()) return
+    call toc_master(s, 6, t0)
+    if (.not. all_ok(st)) return
     if (proj) then
       call project_mean_stress(s, st)
-      call toc(s, 7, t0)
-      if (.not. st%ok()) return
+      call toc_master(s, 7, t0)
     end if
-    call advance_clock(s, dt)
-  end subroutine sim_step
+  end subroutine step_phases
 
   subroutine advance_clock(s, dt)
     !! The clock and step counter after a step of dt.
@@ -380,7 +468,7 @@ contains
     integer(ik) :: k, b, colour
     logical :: simple
 
-    !$omp parallel do schedule(static) default(shared) private(k)
+    !$omp do schedule(static) private(k)
     do k = s%kw(1), s%kw(2)
       s%g%m(k, :) = 0.0_wp
       s%g%px(k, :) = 0.0_wp
@@ -388,7 +476,8 @@ contains
       s%g%fx(k, :) = 0.0_wp
       s%g%fy(k, :) = 0.0_wp
     end do
-    !$omp end parallel do
+    !$omp end do nowait
+    !$omp single
     if (s%any_rigid) then
       s%g%mr = 0.0_wp
       s%g%prx = 0.0_wp
@@ -399,9 +488,10 @@ contains
       s%g%gmy = 0.0_wp
       s%g%gv = 0.0_wp
     end if
+    !$omp end single
     simple = s%g%nf == 1 .and. .not. s%any_rigid
     do colour = 1, 2
-      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
+      !$omp do schedule(dynamic, 1) private(b)
       do b = colour, s%sp%nstrip, 2
         if (simple) then
           call p2g_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
@@ -412,7 +502,7 @@ contains
           call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
       end do
-      !$omp end parallel do
+      !$omp end do
     end do
   end subroutine p2g
 
@@ -519,12 +609,16 @@ contains
     alpha = s%opt%damping
     associate (g => s%g)
       call momentum_to_velocity(g, s%mtol, s%kw, g%px, g%py)
-      if (s%any_rigid) call impose_rigid(g, g%px, g%py)
+      if (s%any_rigid) then
+        !$omp single
+        call impose_rigid(g, g%px, g%py)
+        !$omp end single
+      end if
       ! Contact corrects the integrated velocity only: the FLIP increment v^{n+1} - v^n then
       ! carries the whole contact impulse to the particles (a correction of v^n would be lost
       ! to them and let approaching bodies keep kinetic energy the grid no longer has).
       do f = 1, g%nf
-        !$omp parallel do schedule(static) default(shared) private(k, rm, fx, fy)
+        !$omp do schedule(static) private(k, rm, fx, fy)
         do k = s%kw(1), s%kw(2)
           if (g%m(k, f) > s%mtol) then
             rm = 1.0_wp/g%m(k, f)
@@ -541,8 +635,9 @@ contains
             g%vy(k, f) = 0.0_wp
           end if
         end do
-        !$omp end parallel do
+        !$omp end do
       end do
+      !$omp single
       if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
       do f = 1, g%nf
         call walls_of_field(s, f, g%px(:, f), g%py(:, f))
@@ -554,6 +649,7 @@ contains
           call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
         end do
       end if
+      !$omp end single
     end associate
   end subroutine grid_update
 
@@ -582,7 +678,7 @@ contains
     integer(ik) :: k, f
     real(wp) :: rm
     do f = 1, g%nf
-      !$omp parallel do schedule(static) default(shared) private(k, rm)
+      !$omp do schedule(static) private(k, rm)
       do k = kw(1), kw(2)
         if (g%m(k, f) > mtol) then
           rm = 1.0_wp/g%m(k, f)
@@ -593,7 +689,7 @@ contains
           qy(k, f) = 0.0_wp
         end if
       end do
-      !$omp end parallel do
+      !$omp end do
     end do
   end subroutine momentum_to_velocity
 
@@ -622,7 +718,7 @@ contains
 
     musl = s%opt%update == UPDATE_MUSL
     simple = s%g%nf == 1 .and. .not. s%any_rigid
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (simple) then
@@ -635,13 +731,15 @@ contains
         call g2p_block(s, dt, lo, hi, s%red(:, c))
       end if
     end do
-    !$omp end parallel do
+    !$omp end do
+    !$omp single
     s%diag(4) = sum(s%red(1, :))
     s%diag(6) = sum(s%red(2, :))
     s%diag(7) = sum(s%red(3, :))
     s%diag(8) = s%diag(8) + sum(s%red(4, :))
     s%diag(9) = s%diag(9) + sum(s%red(5, :))
     s%diag(12) = sum(s%red(6, :))
+    !$omp end single nowait
     ! With several fields (contact) the velocity gradient comes from the contact-corrected
     ! integrated velocity, the field that moved the particles: a MUSL remap of the
     ! particle momenta near a contact surface feeds approach velocity that contact
@@ -865,14 +963,14 @@ contains
     !! used with contact (see g2p).
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, f, b, colour, c, lo, hi
-    !$omp parallel do schedule(static) default(shared) private(k)
+    !$omp do schedule(static) private(k)
     do k = s%kw(1), s%kw(2)
       s%g%vx(k, :) = 0.0_wp
       s%g%vy(k, :) = 0.0_wp
     end do
-    !$omp end parallel do
+    !$omp end do
     do colour = 1, 2
-      !$omp parallel do schedule(dynamic, 1) default(shared) private(b)
+      !$omp do schedule(dynamic, 1) private(b)
       do b = colour, s%sp%nstrip, 2
         if (s%g%nf == 1) then
           call remap_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
@@ -881,14 +979,16 @@ contains
           call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
       end do
-      !$omp end parallel do
+      !$omp end do
     end do
     call momentum_to_velocity(s%g, s%mtol, s%kw, s%g%vx, s%g%vy)
+    !$omp single
     if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
     do f = 1, s%g%nf
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
     end do
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, f)
+    !$omp end single
+    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, f)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       if (s%g%nf == 1 .and. .not. s%any_rigid) then
@@ -901,7 +1001,7 @@ contains
         s%p%L(:, ip) = velocity_gradient(s%sh, s%g%vx(:, f), s%g%vy(:, f), ip)
       end do
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine musl_remap
 
   subroutine remap_strip(s, m0, m1)
@@ -936,12 +1036,13 @@ contains
     integer(ik) :: c, lo, hi, ip
     character(len=300) :: buf
 
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       call deformation_block(s, dt, lo, hi, s%cbad(c), s%cval(c))
     end do
-    !$omp end parallel do
+    !$omp end do
+    !$omp single
     do c = 1, NCHUNK
       ip = s%cbad(c)
       if (ip == 0) cycle
@@ -954,8 +1055,9 @@ contains
           s%p%x(:, ip), ') has det F = ', s%cval(c), ' <= 0 (material inverted); reduce cfl or refine the grid'
         call st%set(CPDI_ERR_JACOBIAN, trim(buf))
       end if
-      return
+      exit
     end do
+    !$omp end single
   end subroutine deformation_update
 
   subroutine deformation_block(s, dt, lo, hi, bad, jbad)
@@ -1022,7 +1124,7 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: c, lo, hi, ip
     real(wp) :: jn
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, jn)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, jn)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
@@ -1039,7 +1141,7 @@ contains
       end do
       call update_domains(s, lo, hi)
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine projected_deformation
 
   subroutine update_domains(s, lo, hi)
@@ -1080,30 +1182,34 @@ contains
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: c, lo, hi, ip
-    real(wp) :: smax, vdt
     character(len=300) :: buf
 
-    smax = 0.0_wp
-    vdt = huge(1.0_wp)
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi) reduction(max:smax) reduction(min:vdt)
+    ! max signal speed and min viscous step per block (cext), reduced in the single: max
+    ! and min are exact, so this is the value of any other reduction order.
+    !$omp do schedule(dynamic, 1) private(c, lo, hi)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
-      call stress_block(s, lo, hi, s%red(:, c), smax, vdt, s%cbad(c))
+      s%cext(:, c) = [0.0_wp, huge(1.0_wp)]
+      call stress_block(s, lo, hi, s%red(:, c), s%cext(1, c), s%cext(2, c), s%cbad(c))
     end do
-    !$omp end parallel do
+    !$omp end do
+    !$omp single
     do c = 1, NCHUNK
       ip = s%cbad(c)
       if (ip == 0) cycle
       write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity '// &
         'of particle ', ip, ' at (', s%p%x(:, ip), '); the run became unstable (reduce cfl, check materials)'
       call st%set(CPDI_ERR_NAN, trim(buf))
-      return
+      exit
     end do
-    s%diag(5) = sum(s%red(1, :))
-    s%diag(14) = s%diag(14) + sum(s%red(2, :))*s%dt_last
-    s%smax = smax
-    s%visc_dt = vdt
-    s%diag(11) = smax
+    if (st%ok()) then
+      s%diag(5) = sum(s%red(1, :))
+      s%diag(14) = s%diag(14) + sum(s%red(2, :))*s%dt_last
+      s%smax = maxval(s%cext(1, :))
+      s%visc_dt = minval(s%cext(2, :))
+      s%diag(11) = s%smax
+    end if
+    !$omp end single
   end subroutine stress_update
 
   subroutine stress_block(s, lo, hi, red, smax, vdt, bad)
@@ -1165,7 +1271,7 @@ contains
     real(wp) :: dm
     call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
     if (.not. st%ok()) return
-    !$omp parallel do schedule(dynamic, 1) default(shared) private(c, lo, hi, ip, dm)
+    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, dm)
     do c = 1, NCHUNK
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
@@ -1176,6 +1282,6 @@ contains
         s%p%sig(4, ip) = s%p%sig(4, ip) + dm
       end do
     end do
-    !$omp end parallel do
+    !$omp end do
   end subroutine project_mean_stress
 end module cpdi_step
