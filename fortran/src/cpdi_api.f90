@@ -14,8 +14,8 @@ module cpdi_api
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
-  use cpdi_step, only: sim_t, sim_prepare, sim_step, sim_stable_dt, &
-                       NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID
@@ -535,23 +535,11 @@ contains
     end if
     select case (trim(name))
     case ('fluid')
-      if (value /= 0.0_wp .and. value /= 1.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'fluid must be 0 (weakly_compressible) or 1 (incompressible)')
-      else
-        s%opt%fluid = nint(value, ik)
-      end if
+      call set_flag(s%opt%fluid, 'fluid must be 0 (weakly_compressible) or 1 (incompressible)')
     case ('transfer')
-      if (value /= 0.0_wp .and. value /= 1.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'transfer must be 0 (flip) or 1 (apic)')
-      else
-        s%inc%transfer = nint(value, ik)
-      end if
+      call set_flag(s%inc%transfer, 'transfer must be 0 (flip) or 1 (apic)')
     case ('cg_tolerance')
-      if (.not. (value > 0.0_wp .and. value < 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
-      else
-        s%inc%tol = value
-      end if
+      call set_real(s%inc%tol, value > 0.0_wp .and. value < 1.0_wp, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
     case ('cg_max_iterations')
       if (.not. (value >= 0.0_wp .and. value < 1.0e9_wp) .or. value /= aint(value)) then
         call st%set(CPDI_ERR_INPUT, 'cg_max_iterations must be a whole number >= 0 (0: automatic)')
@@ -559,17 +547,37 @@ contains
         s%inc%maxit = nint(value, ik)
       end if
     case ('volume_correction')
-      if (.not. (value >= 0.0_wp .and. value <= 2.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'volume_correction must lie in [0, 2]; 0.1-1 is typical')
-      else
-        s%inc%beta = value
-      end if
+      call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
+                    'volume_correction must lie in [0, 2]; 0.1-1 is typical')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
                   'cg_tolerance, cg_max_iterations or volume_correction')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)
+  contains
+    subroutine set_flag(target, text)
+      !! target = value if it is 0 or 1, else the error text.
+      integer(ik), intent(inout) :: target
+      character(len=*), intent(in) :: text
+      if (value /= 0.0_wp .and. value /= 1.0_wp) then
+        call st%set(CPDI_ERR_INPUT, text)
+      else
+        target = nint(value, ik)
+      end if
+    end subroutine set_flag
+
+    subroutine set_real(target, ok, text)
+      !! target = value if ok, else the error text.
+      real(wp), intent(inout) :: target
+      logical, intent(in) :: ok
+      character(len=*), intent(in) :: text
+      if (ok) then
+        target = value
+      else
+        call st%set(CPDI_ERR_INPUT, text)
+      end if
+    end subroutine set_real
   end subroutine cpdi_set_option
 
   subroutine cpdi_grid_pressure(handle, nx, ny, p, fill, cell, ierr, msg)

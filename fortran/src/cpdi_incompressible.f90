@@ -189,28 +189,8 @@ contains
       av = 1.0_wp/g%h**2
       do ip = 1, p%n
         mp = p%m(ip)
-        do a = 1, shape_count(ic%shu, ip)
-          call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
-          mom = p%v(1, ip)
-          if (apic) then
-            xk = ic%gu%node_x(k) - p%x(:, ip)
-            mom = mom + p%L(1, ip)*xk(1) + p%L(3, ip)*xk(2)
-          end if
-          mc%um(k) = mc%um(k) + w*mp
-          mc%u(k) = mc%u(k) + w*mp*mom
-          mc%uo(k) = mc%uo(k) + w*mp*dt*(gravity(1) + p%bf(1, ip))
-        end do
-        do a = 1, shape_count(ic%shv, ip)
-          call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
-          mom = p%v(2, ip)
-          if (apic) then
-            xk = ic%gv%node_x(k) - p%x(:, ip)
-            mom = mom + p%L(2, ip)*xk(1) + p%L(4, ip)*xk(2)
-          end if
-          mc%vm(k) = mc%vm(k) + w*mp
-          mc%v(k) = mc%v(k) + w*mp*mom
-          mc%vo(k) = mc%vo(k) + w*mp*dt*(gravity(2) + p%bf(2, ip))
-        end do
+        call scatter(ic%shu, ic%gu, 1, mc%um, mc%u, mc%uo)
+        call scatter(ic%shv, ic%gv, 2, mc%vm, mc%v, mc%vo)
         ! cell of the particle, and its volume spread bilinearly over the cell centres (indices
         ! clamped to the physical cells: a wall mirrors the water beyond it)
         s = (p%x(:, ip) - g%gorig)/g%h
@@ -240,6 +220,26 @@ contains
         end do
       end do
     end associate
+  contains
+    subroutine scatter(sh, gl, c, fm, fq, fi)
+      !! Velocity component c of particle ip to its face lattice gl: mass fm, momentum fq
+      !! (APIC: with the affine part, c's row of the particle's L) and force impulse fi.
+      type(shape_t), intent(in) :: sh
+      type(grid_t), intent(in) :: gl
+      integer(ik), intent(in) :: c
+      real(wp), intent(inout) :: fm(:), fq(:), fi(:)
+      do a = 1, shape_count(sh, ip)
+        call shape_slot(sh, ip, a, k, w, gxk, gyk)
+        mom = p%v(c, ip)
+        if (apic) then
+          xk = gl%node_x(k) - p%x(:, ip)
+          mom = mom + p%L(c, ip)*xk(1) + p%L(c + 2, ip)*xk(2)
+        end if
+        fm(k) = fm(k) + w*mp
+        fq(k) = fq(k) + w*mp*mom
+        fi(k) = fi(k) + w*mp*dt*(gravity(c) + p%bf(c, ip))
+      end do
+    end subroutine scatter
   end subroutine p2g_faces
 
   subroutine face_velocities(mc, mtol)
@@ -438,25 +438,8 @@ contains
         do ip = lo, hi
           mp = p%m(ip)
           xo = p%x(:, ip)
-          vn = 0.0_wp
-          dv = 0.0_wp
-          vc = 0.0_wp
-          cu = 0.0_wp
-          cv = 0.0_wp
-          do a = 1, shape_count(ic%shu, ip)
-            call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
-            vn(1) = vn(1) + w*mc%u(k)
-            vc(1) = vc(1) + w*mc%uc(k)
-            dv(1) = dv(1) + w*mc%uo(k)
-            cu = cu + mc%u(k)*[gxk, gyk]
-          end do
-          do a = 1, shape_count(ic%shv, ip)
-            call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
-            vn(2) = vn(2) + w*mc%v(k)
-            vc(2) = vc(2) + w*mc%vc(k)
-            dv(2) = dv(2) + w*mc%vo(k)
-            cv = cv + mc%v(k)*[gxk, gyk]
-          end do
+          call gather(ic%shu, ip, mc%u, mc%uc, mc%uo, vn(1), vc(1), dv(1), cu)
+          call gather(ic%shv, ip, mc%v, mc%vc, mc%vo, vn(2), vc(2), dv(2), cv)
           if (apic) then
             p%v(:, ip) = vn
           else
@@ -511,6 +494,28 @@ contains
     diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
+
+  pure subroutine gather(sh, ip, fv, fc, fd, vn, vc, dv, grad)
+    !! One velocity component at particle ip from its face lattice: velocity vn, correction
+    !! velocity vc, FLIP increment dv (from fv, fc, fd) and the component's gradient.
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip
+    real(wp), intent(in) :: fv(:), fc(:), fd(:)
+    real(wp), intent(out) :: vn, vc, dv, grad(2)
+    integer(ik) :: a, k
+    real(wp) :: w, gxk, gyk
+    vn = 0.0_wp
+    vc = 0.0_wp
+    dv = 0.0_wp
+    grad = 0.0_wp
+    do a = 1, shape_count(sh, ip)
+      call shape_slot(sh, ip, a, k, w, gxk, gyk)
+      vn = vn + w*fv(k)
+      vc = vc + w*fc(k)
+      dv = dv + w*fd(k)
+      grad = grad + fv(k)*[gxk, gyk]
+    end do
+  end subroutine gather
 
   subroutine incomp_transfer_cycle(ic, g, p, st)
     !! P2G to the face lattices and straight back (no forces, no projection, dt = 0; PIC,

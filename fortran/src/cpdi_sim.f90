@@ -1,0 +1,157 @@
+!> The simulation object: options, state and the helpers every stage of a step shares.
+module cpdi_sim
+  !! sim_t holds the grid, particles, materials, interpolation, projection and incompressible-water
+  !! storage of one simulation, its clock, diagnostics and timers. The stages of a step
+  !! (cpdi_transfer, cpdi_grid_update, cpdi_constitutive, cpdi_incompressible) act on it;
+  !! cpdi_step puts them in sequence.
+  use, intrinsic :: iso_fortran_env, only: int64
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t
+  use cpdi_grid, only: grid_t
+  use cpdi_particles, only: particles_t
+  use cpdi_shape, only: shape_t, SHAPE_GIMP, SHAPE_CPDI
+  use cpdi_schedule, only: strips_t, NCHUNK
+  use cpdi_materials, only: material_t, KIN_LOG
+  use cpdi_projection, only: projection_t, PROJ_NONE
+  use cpdi_incompressible, only: incomp_t, FLUID_WEAKLY_COMPRESSIBLE
+  implicit none
+  private
+
+  integer(ik), parameter, public :: UPDATE_USL = 0
+  integer(ik), parameter, public :: UPDATE_MUSL = 1
+
+  integer(ik), parameter, public :: NDIAG = 18
+  !! diag: 1 t, 2 dt, 3 steps, 4 kinetic energy, 5 strain energy, 6-7 momentum,
+  !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
+  !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
+  !! 14 viscous dissipation; incompressible water: 15 CG iterations and 16 relative
+  !! residual of the last pressure solve, 17 CG iterations of all steps, 18 work of gravity
+  !! on the volume correction's displacements (not in 8: the correction is no flow)
+  integer(ik), parameter, public :: MIN_PER_THREAD = 16384
+  !! particles per thread below which a step uses fewer threads: a step has about 20
+  !! barriers, and on the 2-core VM 8k CPDI particles ran 1.4x slower on 2 threads than on 1
+  !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
+  !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
+  !! tests set it to 1 so that their small cases really run on several threads.
+  integer(ik), parameter, public :: NTIMER = 8
+  !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
+  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
+  !! 8 pressure solve (incompressible water)
+
+  type, public :: options_t
+    integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
+    integer(ik) :: update = UPDATE_MUSL      !! UPDATE_USL or UPDATE_MUSL
+    integer(ik) :: projection = PROJ_NONE    !! PROJ_NONE, PROJ_CELL or PROJ_NODAL
+    integer(ik) :: kinematics = KIN_LOG      !! KIN_LOG or KIN_SMALL
+    integer(ik) :: domain_scaling = 0        !! 1: Homel et al. (2016) domain scaling
+    integer(ik) :: fixed_dt = 0              !! 1: use dt below instead of the CFL step
+    integer(ik) :: fluid = FLUID_WEAKLY_COMPRESSIBLE !! water model: explicit weakly compressible or incompressible
+    real(wp) :: cfl = 0.3_wp                 !! Courant number
+    real(wp) :: gravity(2) = 0.0_wp          !! [m/s^2]
+    real(wp) :: damping = 0.0_wp             !! Cundall local damping coefficient [-]
+    real(wp) :: dt = 0.0_wp                  !! fixed time step [s]
+    real(wp) :: flip = 1.0_wp                !! FLIP fraction of the particle velocity update
+    real(wp) :: lcrit = 0.49999_wp           !! domain-scaling limit as a fraction of h
+    real(wp) :: pstab = 0.0_wp               !! projection stabilisation beta: keep beta of the raw field
+  end type options_t
+
+  type, public :: sim_t
+    logical :: has_grid = .false.
+    logical :: has_materials = .false.
+    logical :: has_particles = .false.
+    type(grid_t) :: g
+    type(particles_t) :: p
+    type(material_t), allocatable :: mats(:)
+    logical, allocatable :: rigid(:)         !! per material
+    logical, allocatable :: fluid(:)         !! per material: F kept isotropic, sqrt(J) I
+    logical :: any_rigid = .false.
+    integer(ik), allocatable :: body(:)      !! per particle: body index (1-based)
+    integer(ik), allocatable :: field(:)     !! per particle: velocity field (1, or its body with contact)
+    logical, allocatable :: field_rigid(:)   !! per field: a rigid body (infinite mass in contact)
+    logical, allocatable :: field_solid(:)   !! per field: no fluid particle (walls obey the volume constraint)
+    logical :: contact = .false.             !! multi-velocity-field contact between bodies
+    real(wp) :: friction = 0.0_wp            !! Coulomb coefficient of contact
+    real(wp) :: fullness = 0.9_wp            !! contact needs sum_b V_i^b >= fullness h^2 at the node
+    real(wp) :: dt_last = 0.0_wp
+    type(shape_t) :: sh
+    type(projection_t) :: proj
+    type(incomp_t) :: inc                    !! incompressible water: settings and staggered grid
+    logical, allocatable :: pmask(:)         !! per particle: takes part in the projection
+    type(options_t) :: opt
+    real(wp) :: t = 0.0_wp
+    integer(int64) :: steps = 0
+    real(wp) :: mtol = 0.0_wp                !! nodes lighter than this carry no velocity
+    real(wp) :: smax = -1.0_wp               !! max signal speed of the current state (<0: unknown)
+    real(wp) :: visc_dt = huge(1.0_wp)       !! viscous time-step limit
+    real(wp) :: diag(NDIAG) = 0.0_wp
+    real(wp) :: timers(NTIMER) = 0.0_wp
+    type(strips_t) :: sp                     !! scatter colouring of the particles (per step)
+    integer(ik) :: kprev(2) = [1, huge(1)]   !! nodes the last step's stencils spanned (first, last)
+    integer(ik) :: kw(2) = [1, huge(1)]      !! nodes this step clears and updates (first, last)
+    real(wp) :: red(6, NCHUNK) = 0.0_wp      !! per-block partial sums of the reductions
+    integer(ik) :: cbad(NCHUNK) = 0          !! per-block first failing particle
+    real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
+    real(wp) :: cext(2, NCHUNK) = 0.0_wp     !! per-block max signal speed, min viscous step
+    integer(ik) :: min_per_thread = MIN_PER_THREAD   !! CPDI_MIN_PER_THREAD in the environment overrides
+  end type sim_t
+
+  public :: tic, toc, all_ok, all_int, tic_master, toc_master
+
+contains
+
+  subroutine tic(t0)
+    integer(int64), intent(out) :: t0
+    call system_clock(t0)
+  end subroutine tic
+
+  subroutine toc(s, slot, t0)
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: slot
+    integer(int64), intent(inout) :: t0
+    integer(int64) :: t1, rate
+    call system_clock(t1, rate)
+    s%timers(slot) = s%timers(slot) + real(t1 - t0, wp)/real(rate, wp)
+    t0 = t1
+  end subroutine toc
+
+  logical function all_ok(st)
+    !! st%ok() as one thread sees it, given to every thread of the region (copyprivate): a
+    !! status set in a `single` by another thread is otherwise not guaranteed to be re-read
+    !! (the compiler may keep a dummy argument's earlier value across the barrier), and
+    !! threads that disagree leave the step at different barriers and hang.
+    type(status_t), intent(in) :: st
+    logical :: ok
+    !$omp single
+    ok = st%ok()
+    !$omp end single copyprivate(ok)
+    all_ok = ok
+  end function all_ok
+
+  integer(ik) function all_int(i)
+    !! i as one thread sees it, given to every thread of the region (see all_ok).
+    integer(ik), intent(in) :: i
+    integer(ik) :: v
+    !$omp single
+    v = i
+    !$omp end single copyprivate(v)
+    all_int = v
+  end function all_int
+
+  subroutine tic_master(t0)
+    !! tic on the master thread only (inside or outside a parallel region; no barrier).
+    integer(int64), intent(inout) :: t0
+    !$omp master
+    call tic(t0)
+    !$omp end master
+  end subroutine tic_master
+
+  subroutine toc_master(s, slot, t0)
+    !! toc on the master thread only: the phases end in barriers, so its clock spans a phase.
+    type(sim_t), intent(inout) :: s
+    integer(ik), intent(in) :: slot
+    integer(int64), intent(inout) :: t0
+    !$omp master
+    call toc(s, slot, t0)
+    !$omp end master
+  end subroutine toc_master
+end module cpdi_sim
