@@ -117,11 +117,11 @@ def run(ctx: CheckContext) -> CheckResult:
             m = sensor_metrics(r["series"][:, 0], r["series"][:, k], ref["t_star"], ref[f"p{name}"])
             for key, v in m.items():
                 res.metrics[f"{label}sensor{name}_{key}"] = v
+        m = {k: res.metrics[f"sensor{name}_{k}"] for k in ("rise_dt", "mean_rel", "window_rms")}
         res.gates += [
-            Gate.at_most(f"sensor{name}_rise_dt", res.metrics[f"sensor{name}_rise_dt"], 0.1, "first p >= 0.1 rho g H [t*]"),
-            Gate.at_most(f"sensor{name}_mean_rel", res.metrics[f"sensor{name}_mean_rel"], 0.15, "mean over 3 <= t* <= 5.5"),
-            Gate.at_most(f"sensor{name}_window_rms", res.metrics[f"sensor{name}_window_rms"], 0.15,
-                         "0.1 t* window means, 3 <= t* <= 6 [rho g H]")]
+            Gate.at_most(f"sensor{name}_rise_dt", m["rise_dt"], 0.1, "first p >= 0.1 rho g H [t*]"),
+            Gate.at_most(f"sensor{name}_mean_rel", m["mean_rel"], 0.15, "mean over 3 <= t* <= 5.5"),
+            Gate.at_most(f"sensor{name}_window_rms", m["window_rms"], 0.15, "0.1 t* window means, 3 <= t* <= 6")]
     res.metrics.update({"volume_change": inc["volume_change"], "wc_volume_change": wc["volume_change"],
                         "steps": float(inc["steps"]), "wc_steps": float(wc["steps"]),
                         "cg_iterations_per_step": inc["cg_total"] / max(inc["steps"], 1)})
