@@ -4,13 +4,15 @@ Importing the package sets two OpenMP defaults for the solver, before its extens
 with it libgomp, which reads the environment once, when it is loaded) can be imported.
 Neither overrides a setting the user made:
 
-* OMP_WAIT_POLICY=passive (unless OMP_WAIT_POLICY or GOMP_SPINCOUNT is set): a thread
-  that waits at a barrier sleeps at once instead of spinning. libgomp's default spins
-  300000 times first (3-4 ms on the 2-core VM); when another process shares the cores,
-  the spinning thread holds a core the thread it waits for needs, and a 2-thread run was
-  measured 17x slower than 1 thread (docs/notes/threads.md). Passive costs a wake-up per
-  barrier on an idle machine (32k CPDI, 2 threads: 0.30 s -> 0.39 s per 100 steps);
-  OMP_WAIT_POLICY=active gets that back on a machine the solver has to itself.
+* GOMP_SPINCOUNT=10000 (unless OMP_WAIT_POLICY or GOMP_SPINCOUNT is set): a thread that
+  waits at a barrier spins for about 0.1 ms, then sleeps. libgomp's default spins 300000
+  times (3-4 ms on the 2-core VM); when another process shares the cores, the spinning
+  thread holds a core the thread it waits for needs, and a 2-thread run was measured 17x
+  slower than 1 thread. Sleeping at once (passive) is safe under load but pays a wake-up
+  per barrier on an idle machine (32k CPDI, 2 threads: 0.45 s per 100 steps against 0.31
+  with the short spin). With the short spin a 2-thread step beside a busy process still
+  takes ~1.7x a 1-thread one, so the solver measures both and runs each step on the
+  faster team (cpdi_step.team_for_step). docs/notes/threads.md has the measurements.
 * OMP_NUM_THREADS = the cores this process may use (available_cores: the affinity mask
   and a cgroup CPU quota), not the machine's total. solver.threads(n) overrides it.
 """
@@ -49,7 +51,7 @@ def available_cores() -> int:
 def _openmp_defaults() -> None:
     env = os.environ
     if "OMP_WAIT_POLICY" not in env and "GOMP_SPINCOUNT" not in env:
-        env["OMP_WAIT_POLICY"] = "passive"
+        env["GOMP_SPINCOUNT"] = "10000"
     if not env.get("OMP_NUM_THREADS"):
         env["OMP_NUM_THREADS"] = str(available_cores())
 

@@ -93,6 +93,9 @@ module cpdi_sim
     real(wp) :: cval(NCHUNK) = 0.0_wp        !! per-block value that made it fail
     real(wp) :: cext(2, NCHUNK) = 0.0_wp     !! per-block max signal speed, min viscous step
     integer(ik) :: min_per_thread = MIN_PER_THREAD   !! CPDI_MIN_PER_THREAD in the environment overrides
+    real(wp) :: step_s(2) = 0.0_wp           !! recent wall seconds of a step on 1 thread, on all (0: not measured)
+    integer(ik) :: team = 2                  !! 1: the next steps run on 1 thread; 2: on all allowed
+    integer(ik) :: since_probe = 0           !! steps since the other team size was last measured
   end type sim_t
 
   public :: tic, toc, all_ok, all_int, tic_master, toc_master

@@ -185,7 +185,8 @@ contains
     type(status_t), intent(inout) :: st
     real(wp) :: dt, dtc
     integer(ik) :: bad, fail
-    integer :: nthr
+    integer :: nthr, team
+    integer(int64) :: c0, c1, rate
     integer(int64) :: t0
     character(len=300) :: buf
     logical :: proj
@@ -231,10 +232,15 @@ contains
     ! see the same st after the phase's barrier).
     nthr = 1
     !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread)))
+    team = team_for_step(s, nthr)
+    if (abs(team) == 1) nthr = 1
+    call system_clock(c0)
     !$omp parallel default(shared) num_threads(nthr)
     call step_phases(s, dt, proj, st, bad, fail, buf, t0)
     !$omp end parallel
+    call system_clock(c1, rate)
     if (.not. st%ok()) return
+    if (team /= 0) call team_measured(s, team, real(c1 - c0, wp)/real(rate, wp))
     call advance_clock(s, dt)
   end subroutine sim_step
 
@@ -304,6 +310,52 @@ contains
       call toc_master(s, 7, t0)
     end if
   end subroutine step_phases
+
+  integer function team_for_step(s, nthr) result(team)
+    !! Which team runs this step: 1 (one thread) or 2 (nthr threads); 0 when there is no
+    !! choice (nthr = 1). Threads never make a step slower: the wall time of a step is kept for
+    !! both team sizes (an average over the last steps), the faster one runs, and every
+    !! PROBE_EVERY steps one step runs on the other to keep its time current. Beside a busy
+    !! process a waiting thread's spin holds a core its partner needs, and 2 threads can take
+    !! twice as long as 1; on an idle machine they take 0.65 of it (docs/notes/threads.md).
+    !! Results do not depend on the team (bitwise, cpdi_schedule).
+    type(sim_t), intent(inout) :: s
+    integer, intent(in) :: nthr
+    integer(ik), parameter :: PROBE_EVERY = 32
+    team = 0
+    if (nthr <= 1) return
+    s%since_probe = s%since_probe + 1
+    if (s%step_s(2) <= 0.0_wp) then   ! calibration: a first step on all threads (they start), a second
+      team = 2
+      if (s%step_s(2) == 0.0_wp) s%step_s(2) = -1.0_wp   ! (discarded), then one on 1 thread
+    else if (s%step_s(1) == 0.0_wp) then
+      team = 1
+    else
+      team = merge(1, 2, s%step_s(1) < s%step_s(2))
+      if (s%since_probe >= PROBE_EVERY) then
+        team = -(3 - team)   ! a probe of the other team: its time replaces the average
+        s%since_probe = 0
+      end if
+    end if
+  end function team_for_step
+
+  subroutine team_measured(s, team, secs)
+    !! Fold the wall time of a step run by team (1 or 2) into its average (weight 1/4 for
+    !! the newest: a load that starts or stops shows within a few steps); a probe (-1, -2)
+    !! replaces it. step_s(2) is -1 before the first step on all threads, -2 after it.
+    type(sim_t), intent(inout) :: s
+    integer, intent(in) :: team
+    real(wp), intent(in) :: secs
+    if (team < 0) then   ! a probe
+      s%step_s(-team) = secs
+    else if (s%step_s(team) == -1.0_wp) then   ! the first step on all threads: threads start
+      s%step_s(team) = -2.0_wp
+    else if (s%step_s(team) <= 0.0_wp) then
+      s%step_s(team) = secs
+    else
+      s%step_s(team) = 0.75_wp*s%step_s(team) + 0.25_wp*secs
+    end if
+  end subroutine team_measured
 
   subroutine advance_clock(s, dt)
     !! The clock and step counter after a step of dt.
