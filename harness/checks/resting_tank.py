@@ -83,8 +83,8 @@ def run(ctx: CheckContext) -> CheckResult:
     yy = np.linspace(0.0, H, 2)
     plots.time_series(ctx.fig_dir / "resting_tank_pressure.png", inc["p"] / 1e3,
                       {}, exact=(RHO * G * (H - yy) / 1e3, yy), exact_label="rho g (H - y)",
-                      points={"incompressible (particles)": (inc["p"] / 1e3, inc["y"]),
-                              "weakly compressible (particles)": (wc["p"] / 1e3, wc["y"])},
+                      points={"weakly compressible (particles)": (wc["p"] / 1e3, wc["y"]),
+                              "incompressible (particles, drawn over)": (inc["p"] / 1e3, inc["y"])},
                       xlabel="pressure [kPa]", ylabel="y [m]", title="Pressure at the end (particles)",
                       annotate=f"rel. L2 error: incompressible {inc['pressure_rel_l2']:.1e}, "
                                f"weakly compressible {wc['pressure_rel_l2']:.1e}")
