@@ -78,7 +78,7 @@ def run(ctx: CheckContext) -> CheckResult:
     noise, frames = {}, []
     for proj in PROJS:
         case = cases.load(DAM, [f"grid.cell={cell_dam}", 'solver.shape="cpdi"', f'solver.projection="{proj}"',
-                                "solver.t_end=0.2"])
+                                "solver.t_end=0.2", 'solver.fluid="weakly_compressible"', 'solver.transfer="flip"'])
         r = runner.run(case, None, progress=False, snapshots=False)
         noise[proj] = hs.pressure_noise(r.final["x"], r.final["sigma"], cell_dam, cell_dam / 2, 0.292)
         frames.append((f"{proj}: noise {noise[proj]:.3f}", r.final["x"], pressure(r.final["sigma"]) / 1e3))
