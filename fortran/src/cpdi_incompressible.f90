@@ -411,7 +411,7 @@ contains
     real(wp), intent(out) :: smax
     type(status_t), intent(inout) :: st
     integer(int64), intent(in) :: steps
-    integer(ik) :: c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, bad(NCHUNK)
+    integer(ik) :: c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, bad(NCHUNK), ix(2), jy(2)
     real(wp) :: vn(2), dv(2), vc(2), cu(2), cv(2), w, gxk, gyk, xo(2), xmin(2), xmax(2), ke, mom(2), wg, wb, mp, &
                 s(2), pp, wx(2), wy(2), vmax, wc
     logical :: closed(4), apic
@@ -425,7 +425,7 @@ contains
     bad = 0
     associate (mc => ic%mc)
       !$omp parallel do schedule(dynamic, 1) default(shared) reduction(max:vmax) &
-      !$omp private(c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, vn, dv, vc, cu, cv, w, gxk, gyk, xo, ke, mom, wg, wb, &
+      !$omp private(c, lo, hi, ip, a, k, nclamp, i0, j0, i, j, ix, jy, vn, dv, vc, cu, cv, w, gxk, gyk, xo, ke, mom, wg, wb, &
       !$omp mp, s, pp, wx, wy, wc)
       do c = 1, NCHUNK
         call chunk_range(c, p%n, lo, hi)
@@ -448,18 +448,19 @@ contains
           p%L(:, ip) = [cu(1), cv(1), cu(2), cv(2)]
           p%x(:, ip) = xo + dt*(vn + vc)
           call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
-          ! pressure: bilinear over the cell centres, indices clamped to the physical cells
+          ! pressure: bilinear over the cell centres, extrapolated linearly across the domain's
+          ! edges (a hydrostatic pressure is then exact up to the floor)
           s = (p%x(:, ip) - g%gorig)/g%h - 0.5_wp
           i0 = int(floor(s(1))) + 1
           j0 = int(floor(s(2))) + 1
           s = s - floor(s)
-          wx = [1.0_wp - s(1), s(1)]
-          wy = [1.0_wp - s(2), s(2)]
+          call edge_weights(i0, s(1), mc%lo(1), mc%hi(1), ix, wx)
+          call edge_weights(j0, s(2), mc%lo(2), mc%hi(2), jy, wy)
           pp = 0.0_wp
-          do j = 0, 1
-            do i = 0, 1
-              k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*mc%nn(1)
-              pp = pp + wx(i + 1)*wy(j + 1)*mc%pe(k)
+          do j = 1, 2
+            do i = 1, 2
+              k = ix(i) + (jy(j) - 1)*mc%nn(1)
+              pp = pp + wx(i)*wy(j)*mc%pe(k)
             end do
           end do
           p%sig(:, ip) = [-pp, -pp, 0.0_wp, -pp]
@@ -494,6 +495,29 @@ contains
     diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
+
+  pure subroutine edge_weights(i0, f, lo, hi, idx, w)
+    !! Linear interpolation between cell centres i0 and i0 + 1 at fraction f along one axis,
+    !! as two (index, weight) pairs inside lo..hi: a centre beyond an edge is the linear
+    !! extrapolation of the two inside it (2 p(lo) - p(lo + 1)); far outside, the edge value.
+    integer(ik), intent(in) :: i0, lo, hi
+    real(wp), intent(in) :: f
+    integer(ik), intent(out) :: idx(2)
+    real(wp), intent(out) :: w(2)
+    if (i0 >= lo .and. i0 + 1 <= hi) then
+      idx = [i0, i0 + 1]
+      w = [1.0_wp - f, f]
+    else if (i0 == lo - 1 .and. hi > lo) then
+      idx = [lo, lo + 1]
+      w = [2.0_wp*(1.0_wp - f) + f, -(1.0_wp - f)]
+    else if (i0 == hi .and. hi > lo) then
+      idx = [hi, hi - 1]
+      w = [(1.0_wp - f) + 2.0_wp*f, -f]
+    else
+      idx = min(max(i0, lo), hi)
+      w = [1.0_wp, 0.0_wp]
+    end if
+  end subroutine edge_weights
 
   pure subroutine gather(sh, ip, fv, fc, fd, vn, vc, dv, grad)
     !! One velocity component at particle ip from its face lattice: velocity vn, correction
