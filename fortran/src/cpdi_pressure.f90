@@ -429,8 +429,8 @@ contains
 
   subroutine mac_ghost_pressure(mc)
     !! pe: the pressure in water cells, the mean ghost value p_w (1 - 1/theta) of the water
-    !! neighbours in air cells next to water, 0 in other air cells; wall cells mirror their
-    !! inner neighbour (zero normal gradient) through index clamping at interpolation.
+    !! neighbours in air cells next to water, 0 in other air cells. Beyond the domain's edges
+    !! the particle interpolation extrapolates linearly (cpdi_incompressible edge_weights).
     type(mac_t), intent(inout) :: mc
     integer(ik) :: i, j, c, n1, nb(4), a, cnt
     real(wp) :: sg
