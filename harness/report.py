@@ -109,6 +109,7 @@ def build_metrics(
                     "bound": float(g.bound),
                     "kind": g.kind,
                     "passed": bool(g.passed),
+                    **({"known_limitation": g.known_limitation, "outcome": g.outcome} if g.known_limitation else {}),
                 }
                 for g in r.gates
             ],
@@ -285,6 +286,7 @@ blockquote { margin: .8rem 0; padding: .4rem 1rem; border-left: 4px solid #8c959
          font-size: .82rem; color: #fff; }
 .badge.pass { background: #1a7f37; } .badge.fail { background: #cf222e; }
 .badge.info { background: #9a6700; } .badge.muted { background: #6e7781; }
+.badge.known { background: #8250df; }
 .banner { background: #fff8c5; border: 1px solid #d4a72c; padding: .6rem 1rem; font-weight: 700;
           border-radius: 6px; margin: .8rem 0; }
 .error { background: #ffebe9; border: 1px solid #cf222e; padding: .6rem 1rem; border-radius: 6px; margin: .8rem 0; }
@@ -302,6 +304,20 @@ def _e(v: Any) -> str:
 
 def _badge(passed: bool) -> str:
     return '<span class="badge pass">PASS</span>' if passed else '<span class="badge fail">FAIL</span>'
+
+
+def _md_outcome(g) -> str:
+    """pass / **FAIL**, or XFAIL / XPASS with the known limitation."""
+    if g.counts:
+        return "pass" if g.passed else "**FAIL**"
+    return f"{g.outcome} (known limitation: {g.known_limitation})"
+
+
+def _gate_badge(g) -> str:
+    """PASS / FAIL, or XFAIL / XPASS for a gate marked as a known limitation."""
+    if g.counts:
+        return _badge(g.passed)
+    return f'<span class="badge known" title="{html.escape(g.known_limitation)}">{g.outcome}</span>'
 
 
 def _html_rows(header: list[str], rows: list[list[str]], row_classes: list[str] | None = None) -> str:
@@ -342,11 +358,12 @@ def _html_check(out_dir: Path, r: CheckResult) -> str:
                 _e(g.value),
                 _e(g.bound),
                 html.escape(g.kind),
-                _badge(g.passed) + (f" {_md_inline(g.note)}" if g.note else ""),
+                _gate_badge(g) + (f" {_md_inline(g.note)}" if g.note else "")
+                + (f"<br><em>known limitation:</em> {_md_inline(g.known_limitation)}" if g.known_limitation else ""),
             ]
             for g in r.gates
         ]
-        classes = ["" if g.passed else "failgate" for g in r.gates]
+        classes = ["" if g.passed or not g.counts else "failgate" for g in r.gates]
         parts.append(_html_rows(["metric", "value", "bound", "kind", "pass"], rows, classes))
     gated = {g.metric for g in r.gates}
     extra = {k: v for k, v in r.metrics.items() if k not in gated}
@@ -527,7 +544,7 @@ def _md_check(r: CheckResult) -> str:
         parts.append(
             _md_table(
                 ["metric", "value", "bound", "kind", "pass"],
-                [[g.metric, g.value, g.bound, g.kind, "pass" if g.passed else "**FAIL**"] for g in r.gates],
+                [[g.metric, g.value, g.bound, g.kind, _md_outcome(g)] for g in r.gates],
             )
         )
     gated = {g.metric for g in r.gates}

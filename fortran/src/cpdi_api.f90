@@ -595,8 +595,9 @@ contains
     fill = 0.0_wp
     cell = 0
     call lookup(handle, s, st)
+    if (st%ok()) call sim_prepare(s, st)   ! the grid exists from the start (a snapshot at t = 0)
     if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
-      call st%set(CPDI_ERR_STATE, 'no pressure grid: it exists once an incompressible run has been prepared')
+      call st%set(CPDI_ERR_STATE, 'no pressure grid: only incompressible runs (solver.fluid = "incompressible") have one')
     if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
       call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
     if (st%ok()) then
