@@ -7,6 +7,7 @@ Layout of a report directory (DESIGN.md, "metrics.json" contract)::
     <out_dir>/results.json     full CheckResult dicts + quick + provenance + gate_summary
     <out_dir>/report.md        Markdown report, figures referenced as figures/x.png
     <out_dir>/index.html       self-contained HTML report (figures embedded as base64)
+    <out_dir>/junit.xml        JUnit XML: a testsuite per check, a testcase per gate (harness.junit)
     <out_dir>/figures/*.png    written by the checks
 
 Everything rendered is derived from ``results.json`` alone, so :func:`rerender`
@@ -25,6 +26,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from harness import junit
 from harness.checks.base import CheckResult
 
 SCHEMA = 1
@@ -109,6 +111,7 @@ def build_metrics(
                     "bound": float(g.bound),
                     "kind": g.kind,
                     "passed": bool(g.passed),
+                    **({"note": g.note} if g.note else {}),
                     **({"known_limitation": g.known_limitation, "outcome": g.outcome} if g.known_limitation else {}),
                 }
                 for g in r.gates
@@ -604,6 +607,7 @@ def _render(out_dir: Path, payload: dict[str, Any]) -> dict[str, Any]:
     bench = payload.get("bench") or None
     metrics = build_metrics(results, provenance, quick, gate_summary)
     _dump(out_dir / "metrics.json", metrics)
+    junit.write(out_dir / "junit.xml", metrics, gate_summary)
     passed = bool(metrics["passed"])
     md = render_markdown(results, provenance, quick, gate_summary, passed, bench)
     (out_dir / "report.md").write_text(md, encoding="utf-8")

@@ -308,3 +308,41 @@ def test_known_limitation_gates_are_reported_but_do_not_decide(tmp_path: Path) -
     # the mark does not excuse the other gates
     r.gates[0] = Gate.at_most("rise_dt", 0.2, 0.1)
     assert not r.passed and r.verdict.startswith("FAILED: rise_dt=0.2")
+
+
+def test_junit_xml_counts_match_metrics_json(tmp_path: Path) -> None:
+    """junit.xml: a testsuite per check and a testcase per gate (counts equal to metrics.json);
+    a missed gate is a failure naming metric, value, bound and reference; an XFAIL is skipped;
+    a check that could not run is an error; gold regressions are failures of their own suite."""
+    import xml.etree.ElementTree as ET
+
+    why = "2D model"
+    ok = CheckResult(name="lobovsky", requirement="wall pressure (Lobovsky 2014)", gates=[
+        Gate.at_most("rise_dt", 0.05, 0.1, "first rise [t*]"),
+        Gate.at_most("mean_rel", 0.34, 0.15, known_limitation=why),
+        Gate.at_most("volume", 0.02, 0.01)])
+    broken = CheckResult(name="bar", requirement="x", error="CpdiError: NaN at step 3")
+    rows = [{"check": "lobovsky", "metric": "rise_dt", "value": 0.05, "gold": 0.01, "abs_tol": 0.0,
+             "rel_tol": 0.05, "status": "regressed", "reason": "errors: 5 %"},
+            {"check": "lobovsky", "metric": "volume", "value": 0.02, "gold": 0.02, "abs_tol": 0.0,
+             "rel_tol": 0.05, "status": "ok", "reason": ""}]
+    metrics = report.write_report(tmp_path, [ok, broken], PROV, quick=True, gate_summary=rows)
+    root = ET.parse(tmp_path / "junit.xml").getroot()
+    suites = {s.get("name"): s for s in root.iter("testsuite")}
+    assert set(suites) == {"lobovsky", "bar", "regression_vs_gold"}
+    for name, c in metrics["checks"].items():
+        if not c["error"]:
+            assert int(suites[name].get("tests")) == len(c["gates"]) == len(suites[name].findall("testcase"))
+    lob = suites["lobovsky"]
+    assert (lob.get("failures"), lob.get("skipped"), lob.get("errors")) == ("1", "1", "0")
+    fail = lob.find("testcase[@name='volume']/failure").get("message")
+    assert "volume = 0.02" in fail and "<= 0.01" in fail and "Lobovsky 2014" in fail
+    assert why in lob.find("testcase[@name='mean_rel']/skipped").get("message")
+    assert lob.find("testcase[@name='rise_dt']/failure") is None
+    assert "NaN at step 3" in suites["bar"].find("testcase/error").get("message")
+    gold = suites["regression_vs_gold"]
+    assert (gold.get("tests"), gold.get("failures")) == ("2", "1")
+    assert root.get("tests") == str(3 + 1 + 2) and root.get("failures") == "2" and root.get("errors") == "1"
+    before = (tmp_path / "junit.xml").read_bytes()
+    report.rerender(tmp_path)
+    assert (tmp_path / "junit.xml").read_bytes() == before
