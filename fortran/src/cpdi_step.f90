@@ -11,7 +11,8 @@ module cpdi_step
   !! OpenMP: one parallel region per step (sim_step); the phases are orphaned worksharing
   !! constructs, so they also run serially when called outside a region (sim_prepare).
   !! Every particle loop runs over the fixed blocks of cpdi_schedule (gathers, reductions
-  !! summed block by block in a fixed order, max/min per block) and every scatter to the
+  !! summed block by block in a fixed order, max/min per block; each thread runs its own
+  !! range of blocks and then helps the others: block_start, block_next) and every scatter to the
   !! grid over its two-colour strips, so a run gives the same bits at any thread count.
   !! Node loops are static worksharing loops. Contact, walls, reductions and error scans
   !! run in `single` (they touch few nodes). Locals of a phase routine are private to each
@@ -28,7 +29,7 @@ module cpdi_step
                          CPDI_ERR_CFL
   use cpdi_grid, only: grid_fields
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
-  use cpdi_schedule, only: strips_alloc, strips_build
+  use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD
@@ -231,9 +232,10 @@ contains
     ! step_phases are shared in the region; a failing phase returns from every thread (all
     ! see the same st after the phase's barrier).
     nthr = 1
-    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread)))
+    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread), MAX_THREADS))
     team = team_for_step(s, nthr)
     if (abs(team) == 1) nthr = 1
+    call blocks_region()
     call system_clock(c0)
     !$omp parallel default(shared) num_threads(nthr)
     call step_phases(s, dt, proj, st, bad, fail, buf, t0)
@@ -254,6 +256,7 @@ contains
     integer(ik), intent(inout) :: bad, fail
     character(len=*), intent(inout) :: buf
     integer(int64), intent(inout) :: t0
+    call blocks_enter()
     call tic_master(t0)
     call shape_compute(s%g, s%p, s%sh, bad, fail, st)
     if (.not. all_ok(st)) return
