@@ -7,7 +7,7 @@ module cpdi_constitutive
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_NAN, CPDI_ERR_JACOBIAN
   use cpdi_shape, only: SHAPE_CPDI
-  use cpdi_schedule, only: NCHUNK, chunk_range
+  use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, block_next
   use cpdi_materials, only: material_stresses, MAT_FLUID
   use cpdi_kinematics, only: det2, map_domains
   use cpdi_projection, only: projection_apply, PROJ_NONE
@@ -28,14 +28,15 @@ contains
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
     integer(ik) :: c, lo, hi, ip
+    type(blocks_t) :: blk
     character(len=300) :: buf
 
-    !$omp do schedule(dynamic, 1) private(c, lo, hi)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       call deformation_block(s, dt, lo, hi, s%cbad(c), s%cval(c))
     end do
-    !$omp end do
+    !$omp barrier
     !$omp single
     do c = 1, NCHUNK
       ip = s%cbad(c)
@@ -117,9 +118,10 @@ contains
     !! tank gained 2.7 kJ of kinetic energy in 4 s). beta keeps a stiffness beta K for them.
     type(sim_t), intent(inout) :: s
     integer(ik) :: c, lo, hi, ip
+    type(blocks_t) :: blk
     real(wp) :: jn
-    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, jn)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
         if (s%pmask(ip)) then
@@ -135,7 +137,7 @@ contains
       end do
       call update_domains(s, lo, hi)
     end do
-    !$omp end do
+    !$omp barrier
   end subroutine projected_deformation
 
   subroutine update_domains(s, lo, hi)
@@ -176,17 +178,18 @@ contains
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: c, lo, hi, ip
+    type(blocks_t) :: blk
     character(len=300) :: buf
 
     ! max signal speed and min viscous step per block (cext), reduced in the single: max
     ! and min are exact, so this is the value of any other reduction order.
-    !$omp do schedule(dynamic, 1) private(c, lo, hi)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       s%cext(:, c) = [0.0_wp, huge(1.0_wp)]
       call stress_block(s, lo, hi, s%red(:, c), s%cext(1, c), s%cext(2, c), s%cbad(c))
     end do
-    !$omp end do
+    !$omp barrier
     !$omp single
     do c = 1, NCHUNK
       ip = s%cbad(c)
@@ -262,11 +265,12 @@ contains
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: c, lo, hi, ip
+    type(blocks_t) :: blk
     real(wp) :: dm
     call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
     if (.not. st%ok()) return
-    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, dm)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       do ip = lo, hi
         if (.not. s%pmask(ip)) cycle
@@ -276,6 +280,6 @@ contains
         s%p%sig(4, ip) = s%p%sig(4, ip) + dm
       end do
     end do
-    !$omp end do
+    !$omp barrier
   end subroutine project_mean_stress
 end module cpdi_constitutive

@@ -33,7 +33,7 @@ module cpdi_projection
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP
-  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range
+  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range, blocks_t, block_start, block_next
   implicit none
   private
 
@@ -214,18 +214,19 @@ contains
     type(particles_t), intent(in) :: p
     logical, intent(in) :: own
     integer(ik) :: c, lo, hi
+    type(blocks_t) :: blk
     !$omp single
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
     pr%own = own
     pr%massed = .false.
     !$omp end single
-    !$omp do schedule(dynamic, 1) private(c, lo, hi)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, p%n, lo, hi)
       pr%cspan(c) = 1
       call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, pr%cspan(c))
     end do
-    !$omp end do
+    !$omp barrier
     if (own) call strips_build(pr%sp, pr%row, maxval(pr%cspan))
   end subroutine setup_cell
 
@@ -346,6 +347,7 @@ contains
     logical, intent(in) :: mask(:)
     real(wp), intent(inout) :: val(:)
     integer(ik) :: c, lo, hi
+    type(blocks_t) :: blk
     if (pr%massed) then
       call scatter_cell(pr, sp, p, mask, val, pr%rhs)
     else
@@ -354,12 +356,12 @@ contains
       pr%massed = .true.
       !$omp end single nowait
     end if
-    !$omp do schedule(dynamic, 1) private(c, lo, hi)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, p%n, lo, hi)
       call gather_block(lo, hi, pr%nq, pr%qc, mask, pr%rhs, pr%hd, val)
     end do
-    !$omp end do
+    !$omp barrier
   end subroutine apply_cell
 
   subroutine gather_block(lo, hi, nq, qc, mask, rhs, rhd, val)
@@ -529,6 +531,7 @@ contains
     real(wp), intent(inout) :: val(:)
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, q, nq, a, ka(4), ia, info, na, it, c, lo, hi
+    type(blocks_t) :: blk
     real(wp) :: xq(2, 4), wq(4), nv(4), mw, acc
     character(len=120) :: buf
     logical :: ok
@@ -563,8 +566,8 @@ contains
     ok = st%ok()
     !$omp end single copyprivate(ok)
     if (.not. ok) return   ! (broadcast: st was set by the single's thread)
-    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, q, nq, xq, wq, ka, nv, a, acc)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, p%n, lo, hi)
       do ip = lo, hi
         if (.not. mask(ip)) cycle
@@ -579,7 +582,7 @@ contains
         val(ip) = acc
       end do
     end do
-    !$omp end do
+    !$omp barrier
   end subroutine apply_nodal
 
   pure subroutine corner_nodes(g, x, k, nv)

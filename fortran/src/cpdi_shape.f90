@@ -25,7 +25,7 @@ module cpdi_shape
   use cpdi_memory, only: advise_huge, advise_huge_int
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
-  use cpdi_schedule, only: NCHUNK, chunk_range
+  use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, block_next
   implicit none
   private
 
@@ -482,6 +482,7 @@ contains
     integer(ik), intent(out) :: bad, fail
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, f, c, lo, hi, span, sp, j
+    type(blocks_t) :: blk
     integer(ik) :: ko(7), k9(9), r9, b0, b1, bspan(CPDI_BATCH)
     real(wp) :: lp(2), wo(7), gxo(7), gyo(7), w9(9), gx9(9), gy9(9)
     logical :: merged(CPDI_BATCH), second
@@ -490,8 +491,8 @@ contains
     ! results live in sh%cb (shared) and are combined in a single, in block order.
     associate (cbad => sh%cb(1, :), cfail => sh%cb(2, :), cnov => sh%cb(3, :), col => sh%cb(4, :), &
                cspan => sh%cb(5, :))
-    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, f, sp, lp, ko, wo, gxo, gyo, b0, b1, bspan, merged, span)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, p%n, lo, hi)
       span = 1
       cbad(c) = 0
@@ -544,7 +545,7 @@ contains
       end do
       cspan(c) = span
     end do
-    !$omp end do
+    !$omp barrier
     !$omp single
     sh%span = maxval(cspan)
     bad = 0
@@ -572,8 +573,8 @@ contains
     !$omp end single copyprivate(second)
     ! (the decision is broadcast: bad and st were set by the single's thread)
     if (second) then
-      !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, j, sp, f, k9, w9, gx9, gy9, r9)
-      do c = 1, NCHUNK
+      call block_start(blk)
+      do while (block_next(blk, c))
         if (cnov(c) == 0) cycle
         call chunk_range(c, p%n, lo, hi)
         j = col(c)
@@ -585,7 +586,7 @@ contains
           j = j + 1
         end do
       end do
-      !$omp end do
+      !$omp barrier
     end if
     end associate
   end subroutine shape_compute

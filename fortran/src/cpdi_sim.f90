@@ -33,6 +33,8 @@ module cpdi_sim
   !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
   !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
   !! tests set it to 1 so that their small cases really run on several threads.
+  integer(ik), parameter, public :: PROBE_MIN = 32    !! steps between probes of the slower team ...
+  integer(ik), parameter, public :: PROBE_MAX = 128   !! ... growing to this while probes confirm the choice
   integer(ik), parameter, public :: NTIMER = 8
   !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
   !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
@@ -94,8 +96,9 @@ module cpdi_sim
     real(wp) :: cext(2, NCHUNK) = 0.0_wp     !! per-block max signal speed, min viscous step
     integer(ik) :: min_per_thread = MIN_PER_THREAD   !! CPDI_MIN_PER_THREAD in the environment overrides
     real(wp) :: step_s(2) = 0.0_wp           !! recent wall seconds of a step on 1 thread, on all (0: not measured)
-    integer(ik) :: team = 2                  !! 1: the next steps run on 1 thread; 2: on all allowed
+    integer(ik) :: team = 0                  !! the faster team when last chosen (1 or 2; 0: not yet)
     integer(ik) :: since_probe = 0           !! steps since the other team size was last measured
+    integer(ik) :: probe_gap = PROBE_MIN     !! steps between probes of the other team (cpdi_step)
   end type sim_t
 
   public :: tic, toc, all_ok, all_int, tic_master, toc_master

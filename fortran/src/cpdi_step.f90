@@ -11,7 +11,8 @@ module cpdi_step
   !! OpenMP: one parallel region per step (sim_step); the phases are orphaned worksharing
   !! constructs, so they also run serially when called outside a region (sim_prepare).
   !! Every particle loop runs over the fixed blocks of cpdi_schedule (gathers, reductions
-  !! summed block by block in a fixed order, max/min per block) and every scatter to the
+  !! summed block by block in a fixed order, max/min per block; each thread runs its own
+  !! range of blocks and then helps the others: block_start, block_next) and every scatter to the
   !! grid over its two-colour strips, so a run gives the same bits at any thread count.
   !! Node loops are static worksharing loops. Contact, walls, reductions and error scans
   !! run in `single` (they touch few nodes). Locals of a phase routine are private to each
@@ -28,10 +29,10 @@ module cpdi_step
                          CPDI_ERR_CFL
   use cpdi_grid, only: grid_fields
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
-  use cpdi_schedule, only: strips_alloc, strips_build
+  use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
-  use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD
+  use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX
   use cpdi_grid_update, only: node_range, grid_update
   use cpdi_transfer, only: p2g, g2p
   use cpdi_constitutive, only: deformation_update, projected_deformation, stress_update, project_mean_stress
@@ -231,9 +232,10 @@ contains
     ! step_phases are shared in the region; a failing phase returns from every thread (all
     ! see the same st after the phase's barrier).
     nthr = 1
-    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread)))
+    !$ nthr = max(1, min(omp_get_max_threads(), s%p%n/max(1, s%min_per_thread), MAX_THREADS))
     team = team_for_step(s, nthr)
     if (abs(team) == 1) nthr = 1
+    call blocks_region()
     call system_clock(c0)
     !$omp parallel default(shared) num_threads(nthr)
     call step_phases(s, dt, proj, st, bad, fail, buf, t0)
@@ -254,6 +256,7 @@ contains
     integer(ik), intent(inout) :: bad, fail
     character(len=*), intent(inout) :: buf
     integer(int64), intent(inout) :: t0
+    call blocks_enter()
     call tic_master(t0)
     call shape_compute(s%g, s%p, s%sh, bad, fail, st)
     if (.not. all_ok(st)) return
@@ -314,14 +317,15 @@ contains
   integer function team_for_step(s, nthr) result(team)
     !! Which team runs this step: 1 (one thread) or 2 (nthr threads); 0 when there is no
     !! choice (nthr = 1). Threads never make a step slower: the wall time of a step is kept for
-    !! both team sizes (an average over the last steps), the faster one runs, and every
-    !! PROBE_EVERY steps one step runs on the other to keep its time current. Beside a busy
-    !! process a waiting thread's spin holds a core its partner needs, and 2 threads can take
-    !! twice as long as 1; on an idle machine they take 0.65 of it (docs/notes/threads.md).
-    !! Results do not depend on the team (bitwise, cpdi_schedule).
+    !! both team sizes (an average over the last steps), the faster one runs, and a step now
+    !! and then runs on the other to keep its time current: PROBE_MIN steps after the faster
+    !! team changed, and each probe that confirms the choice doubles the gap, up to PROBE_MAX
+    !! (a probe costs a slow step: on the idle 2-core VM a 1-thread probe every 32 steps cost
+    !! ~1.5-3 %). Beside a busy process a waiting thread's spin holds a core its partner needs,
+    !! and 2 threads can take twice as long as 1; on an idle machine they take 0.5-0.65 of it
+    !! (docs/notes/threads.md). Results do not depend on the team (bitwise, cpdi_schedule).
     type(sim_t), intent(inout) :: s
     integer, intent(in) :: nthr
-    integer(ik), parameter :: PROBE_EVERY = 32
     team = 0
     if (nthr <= 1) return
     s%since_probe = s%since_probe + 1
@@ -332,7 +336,11 @@ contains
       team = 1
     else
       team = merge(1, 2, s%step_s(1) < s%step_s(2))
-      if (s%since_probe >= PROBE_EVERY) then
+      if (team /= s%team) then   ! the faster team changed: probe the other one soon
+        s%team = team
+        s%probe_gap = PROBE_MIN
+      end if
+      if (s%since_probe >= s%probe_gap) then
         team = -(3 - team)   ! a probe of the other team: its time replaces the average
         s%since_probe = 0
       end if
@@ -342,12 +350,19 @@ contains
   subroutine team_measured(s, team, secs)
     !! Fold the wall time of a step run by team (1 or 2) into its average (weight 1/4 for
     !! the newest: a load that starts or stops shows within a few steps); a probe (-1, -2)
-    !! replaces it. step_s(2) is -1 before the first step on all threads, -2 after it.
+    !! replaces it, and doubles the gap to the next probe if the running team stays the
+    !! faster (else the gap returns to PROBE_MIN). step_s(2) is -1 before the first step on
+    !! all threads, -2 after it.
     type(sim_t), intent(inout) :: s
     integer, intent(in) :: team
     real(wp), intent(in) :: secs
-    if (team < 0) then   ! a probe
+    if (team < 0) then   ! a probe of team -team; the running team is 3 + team
       s%step_s(-team) = secs
+      if (secs >= s%step_s(3 + team)) then
+        s%probe_gap = min(2*s%probe_gap, PROBE_MAX)
+      else
+        s%probe_gap = PROBE_MIN
+      end if
     else if (s%step_s(team) == -1.0_wp) then   ! the first step on all threads: threads start
       s%step_s(team) = -2.0_wp
     else if (s%step_s(team) <= 0.0_wp) then

@@ -8,7 +8,7 @@ module cpdi_transfer
   use cpdi_kinds, only: wp, ik
   use cpdi_grid, only: grid_apply_walls, hold_on_walls, WALL_OPEN
   use cpdi_shape, only: shape_t, shape_count, shape_slot
-  use cpdi_schedule, only: NCHUNK, chunk_range
+  use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
   use cpdi_grid_update, only: momentum_to_velocity, impose_rigid
   implicit none
@@ -162,12 +162,13 @@ contains
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     integer(ik) :: c, lo, hi
+    type(blocks_t) :: blk
     logical :: musl, simple
 
     musl = s%opt%update == UPDATE_MUSL
     simple = s%g%nf == 1 .and. .not. s%any_rigid
-    !$omp do schedule(dynamic, 1) private(c, lo, hi)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       if (simple) then
         call g2p_block_simple(lo, hi, s%sh%nm, s%sh%ns - s%sh%nm, s%sh%ovf, s%sh%idx, s%sh%w, s%sh%pidx, &
@@ -179,7 +180,7 @@ contains
         call g2p_block(s, dt, lo, hi, s%red(:, c))
       end if
     end do
-    !$omp end do
+    !$omp barrier
     !$omp single
     s%diag(4) = sum(s%red(1, :))
     s%diag(6) = sum(s%red(2, :))
@@ -411,6 +412,7 @@ contains
     !! used with contact (see g2p).
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, f, b, colour, c, lo, hi
+    type(blocks_t) :: blk
     !$omp do schedule(static) private(k)
     do k = s%kw(1), s%kw(2)
       s%g%vx(k, :) = 0.0_wp
@@ -436,8 +438,8 @@ contains
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
     end do
     !$omp end single
-    !$omp do schedule(dynamic, 1) private(c, lo, hi, ip, f)
-    do c = 1, NCHUNK
+    call block_start(blk)
+    do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
       if (s%g%nf == 1 .and. .not. s%any_rigid) then
         call vgrad_block(lo, hi, s%sh, s%g%vx, s%g%vy, s%p%L)
@@ -449,7 +451,7 @@ contains
         s%p%L(:, ip) = velocity_gradient(s%sh, s%g%vx(:, f), s%g%vy(:, f), ip)
       end do
     end do
-    !$omp end do
+    !$omp barrier
   end subroutine musl_remap
 
   subroutine remap_strip(s, m0, m1)
