@@ -15,7 +15,7 @@ APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
 CASE ?= cases/water_column.toml
 THREADS ?=
 
-.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold memcheck lint clean distclean help
+.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold memcheck lint clean distclean help mutate
 
 help:
 	@echo "make test          bootstrap, build, run the test suite (Fortran + pytest)"
@@ -25,6 +25,7 @@ help:
 	@echo "make run CASE=cases/x.toml   run one case into runs/<case>/"
 	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
 	@echo "make memcheck      Fortran-only driver under AddressSanitizer + debug flags (leaks, invalid access)"
+	@echo "make mutate        mutation testing of the Fortran core -> reports/mutation/<date>-<sha>/ (SAMPLE=n, RESUME=dir)"
 
 # ---------------------------------------------------------------- bootstrap
 sysdeps:
@@ -86,6 +87,11 @@ run: build
 
 regen-gold: build
 	@$(PY) -m harness verify --regen-gold
+
+mutate: build
+	@$(PY) -m pip install -q --disable-pip-version-check \
+	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
+	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME))
 
 memcheck: venv
 	@test -f $(DEBUG_BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(DEBUG_BUILD) fortran \

@@ -105,6 +105,13 @@ def cmd_bench(args) -> int:
     return bench.main(quick=args.quick, base=args.base)
 
 
+def cmd_mutate(args) -> int:
+    from harness.mutation import main as mutation
+
+    return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
+                         resume=args.resume, only=args.only)
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m harness", description="cpdi-verify harness")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -140,6 +147,14 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "
                    "32k CPDI throughput, interleaved")
     b.set_defaults(func=cmd_bench)
+    mu = sub.add_parser("mutate", help="mutation testing of the Fortran core (make mutate)")
+    mu.add_argument("--sample", type=int, default=220, help="about this many mutants, stratified over the files")
+    mu.add_argument("--jobs", type=int, help="parallel scratch builds (default: the cores this process may use)")
+    mu.add_argument("--seed", type=int, default=20, help="sampling seed (same commit + seed = same mutants)")
+    mu.add_argument("--fast-only", action="store_true", help="no full make test for the fast tier's survivors")
+    mu.add_argument("--resume", metavar="DIR", help="continue an interrupted run in its report directory")
+    mu.add_argument("--only", nargs="+", metavar="FILE", help="mutate only these files (fortran/src/x.f90)")
+    mu.set_defaults(func=cmd_mutate)
     return p
 
 

@@ -1,0 +1,181 @@
+"""Build and test each mutant in scratch copies of the committed tree, in parallel, resumably."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import queue
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from harness.mutation.generate import Mutant
+
+# The fast tier: unit-level tests of kernels, transfers, constitutive models, walls and the
+# incompressible step (each file runs in seconds). The full tier is what `make test` runs.
+FAST_TESTS = [
+    "tests/test_shape_functions.py", "tests/test_log_strain.py", "tests/test_objectivity.py",
+    "tests/test_conservation.py", "tests/test_contact.py", "tests/test_projection.py",
+    "tests/test_incompressible.py", "tests/test_constitutive.py", "tests/test_walls.py",
+    "tests/test_vibrating_bar.py", "tests/test_rigid_and_scaling.py", "tests/test_bad_input.py",
+    "tests/test_incompressible_input.py", "tests/test_determinism.py",
+]
+FAILED = re.compile(r"^(?:FAILED|ERROR) (\S+)", re.M)
+
+
+def _env(work: Path) -> dict:
+    env = dict(os.environ)
+    env["PATH"] = f"{work / '.venv' / 'bin'}:{env.get('PATH', '')}"
+    env["OMP_NUM_THREADS"] = "1"          # one core per worker: the workers share the machine
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    env.pop("PYTEST_ADDOPTS", None)
+    return env
+
+
+def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[int | None, str, float]:
+    """(exit code or None on time-out, combined output, seconds)."""
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, cwd=cwd, env=_env(cwd), capture_output=True, text=True, timeout=timeout)
+        return p.returncode, p.stdout + p.stderr, time.perf_counter() - t0
+    except subprocess.TimeoutExpired as exc:
+        out = (exc.stdout or b"") + (exc.stderr or b"")
+        return None, out.decode(errors="replace") if isinstance(out, bytes) else str(out), time.perf_counter() - t0
+
+
+class Worker:
+    """One scratch copy of the committed tree with its own build directory."""
+
+    def __init__(self, repo: Path, root: Path, index: int):
+        self.repo, self.dir = repo, root / f"w{index}"
+
+    def setup(self, rev: str) -> None:
+        if self.dir.exists():
+            shutil.rmtree(self.dir)
+        self.dir.mkdir(parents=True)
+        archive = subprocess.run(["git", "archive", "--format=tar", rev], cwd=self.repo, capture_output=True,
+                                 check=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(self.dir, filter="data")
+        (self.dir / ".venv").symlink_to(self.repo / ".venv")
+        meson = str(self.repo / ".venv" / "bin" / "meson")
+        code, out, _ = _run([meson, "setup", "build", "fortran", "--python.install-env=auto",
+                             "-Dpython.bytecompile=-1"], self.dir, 600)
+        if code != 0:
+            raise RuntimeError(f"meson setup failed in {self.dir}:\n{out[-2000:]}")
+        if self.build(1800) is not True:
+            raise RuntimeError(f"the unmutated tree does not build in {self.dir}")
+
+    def build(self, timeout: float) -> bool | None:
+        """True if it built (the extension copied into harness/), False if not, None on time-out."""
+        code, _, _ = _run([str(self.repo / ".venv" / "bin" / "meson"), "compile", "-C", "build"], self.dir, timeout)
+        if code != 0:
+            return None if code is None else False
+        for so in (self.dir / "harness").glob("_cpdi*.so"):
+            so.unlink()
+        for so in (self.dir / "build").glob("_cpdi*.so"):
+            shutil.copy2(so, self.dir / "harness" / so.name)
+        return True
+
+    def tier(self, tests: list[str] | None, timeout: float) -> tuple[str, str, float]:
+        """Run the Fortran unit tests, then pytest (-x) on `tests` (None: all). Returns
+        (verdict: 'pass' | 'fail' | 'timeout', the first failing test, seconds)."""
+        meson = str(self.repo / ".venv" / "bin" / "meson")
+        code, out, t1 = _run([meson, "test", "-C", "build", "--no-rebuild", "-q"], self.dir, timeout)
+        if code is None:
+            return "timeout", "meson test (Fortran unit tests)", t1
+        if code != 0:
+            return "fail", "meson test (Fortran unit tests: fortran/tests/test_kernels.f90)", t1
+        py = str(self.repo / ".venv" / "bin" / "python")
+        present = [t for t in tests or [] if (self.dir / t).is_file()]
+        cmd = [py, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-o", "addopts=-rfE", *present]
+        code, out, t2 = _run(cmd, self.dir, max(timeout - t1, 10))
+        if code is None:
+            return "timeout", "pytest (time limit)", t1 + t2
+        if code == 0:
+            return "pass", "", t1 + t2
+        m = FAILED.search(out)
+        return "fail", m.group(1) if m else f"pytest exit {code}", t1 + t2
+
+
+def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
+            full_timeout: float, full: bool, progress) -> list[dict]:
+    """Test every mutant not yet in the journal; returns all journal rows (old and new)."""
+    done = {}
+    if journal.is_file():
+        for line in journal.read_text().splitlines():
+            if line.strip():
+                row = json.loads(line)
+                done[row["id"]] = row
+    todo = [m for m in mutants if m.id not in done]
+    if not todo:
+        return [done[m.id] for m in mutants if m.id in done]
+    root = Path(os.environ.get("CPDI_MUTATE_SCRATCH", "/tmp")) / f"cpdi-mutate-{rev[:12]}"
+    workers = [Worker(repo, root, i) for i in range(min(jobs, len(todo)))]
+    progress(f"setting up {len(workers)} scratch builds of {rev[:12]} under {root} (a full build each)")
+    with ThreadPoolExecutor(len(workers)) as ex:
+        list(ex.map(lambda w: w.setup(rev), workers))
+    base = workers[0].tier(FAST_TESTS, 1800)
+    if base[0] != "pass":
+        raise RuntimeError(f"the unmutated tree fails the fast tier ({base[1]}): fix the suite before mutating")
+    fast_timeout = max(fast_timeout, 3 * base[2])
+    progress(f"fast tier of the unmutated tree: {base[2]:.0f} s; time limit per mutant {fast_timeout:.0f} s")
+    free: queue.Queue[Worker] = queue.Queue()
+    for w in workers:
+        free.put(w)
+    lock = threading.Lock()
+
+    def one(m: Mutant) -> dict:
+        w = free.get()
+        try:
+            return _test_one(w, m, fast_timeout, full_timeout, full)
+        finally:
+            free.put(w)
+
+    with ThreadPoolExecutor(len(workers)) as ex, journal.open("a") as jf:
+        for row in ex.map(one, todo):
+            with lock:
+                jf.write(json.dumps(row) + "\n")
+                jf.flush()
+                done[row["id"]] = row
+                progress(row)
+    return [done[m.id] for m in mutants if m.id in done]
+
+
+def _test_one(w: Worker, m: Mutant, fast_timeout: float, full_timeout: float, full: bool) -> dict:
+    path = w.dir / m.file
+    original = path.read_text(encoding="utf-8")
+    lines = original.splitlines(keepends=True)
+    assert lines[m.line - 1].rstrip("\n") == m.before, f"{m.id}: the source changed since the mutants were made"
+    lines[m.line - 1] = m.after + "\n"
+    row = {**m.to_dict(), "verdict": "", "killed_by": "", "tier": "", "seconds": 0.0}
+    t0 = time.perf_counter()
+    try:
+        path.write_text("".join(lines), encoding="utf-8")
+        built = w.build(600)
+        if built is not True:
+            row.update(verdict="no-compile" if built is False else "timeout-build")
+            return row
+        verdict, test, _ = w.tier(FAST_TESTS, fast_timeout)
+        row["tier"] = "fast"
+        if verdict == "pass" and full:
+            verdict, test, _ = w.tier(None, full_timeout)
+            row["tier"] = "full"
+        row.update(verdict={"fail": "killed", "timeout": "killed (time limit)", "pass": "survived"}[verdict],
+                   killed_by=test)
+        return row
+    finally:
+        path.write_text(original, encoding="utf-8")
+        row["seconds"] = round(time.perf_counter() - t0, 1)
+
+
+def say(msg) -> None:
+    print(msg if isinstance(msg, str) else f"  {msg['id']:<34} {msg['verdict']:<20} {msg['killed_by'][:60]} "
+          f"({msg['seconds']:.0f} s)", file=sys.stderr, flush=True)

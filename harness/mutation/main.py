@@ -1,0 +1,52 @@
+"""`python -m harness mutate`: generate, sample, run and report (see the package docstring)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+from harness.mutation import execute, generate, summary
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool = True, resume: str | None = None,
+         fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None) -> int:
+    rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    if subprocess.run(["git", "status", "--porcelain", "fortran", "tests"], cwd=REPO, capture_output=True,
+                      text=True).stdout.strip():
+        print("note: fortran/ or tests/ have uncommitted changes; mutants are made from and run against the "
+              f"committed tree {rev[:12]} (commit first to include them)", file=sys.stderr)
+    files = only or generate.sources(REPO)
+    every = {f: generate.file_mutants(_committed(rev), f) for f in files}
+    chosen = generate.sample(every, sample, seed)
+    meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed,
+            "sampling": f"stratified sample of {len(chosen)} of {sum(map(len, every.values()))} mutants over "
+                        f"{len(files)} files (share ~ sqrt of each file's count, at least 3, seed {seed})",
+            "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
+                     + ("then the full make test for survivors" if full else "only")}
+    out = Path(resume) if resume else REPO / "reports" / "mutation" / f"{meta['date']}-{rev[:12]}"
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"mutate: {meta['sampling']}; report in {out}", file=sys.stderr)
+    rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs or len(os.sched_getaffinity(0)),
+                           fast_timeout, full_timeout, full, execute.say)
+    sc = summary.write(out, rows, meta)["overall"]
+    print(f"mutate: kill rate {100 * sc['kill_rate']:.1f} % of {sc['counted']} counted mutants "
+          f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "
+          f"{100 * sc['killed_by_fast_tier']:.1f} % of the killed; {out / 'index.html'}")
+    return 0
+
+
+def _committed(rev: str) -> Path:
+    """A read-only export of the committed fortran/src of rev (mutants are made from it)."""
+    dest = Path(os.environ.get("CPDI_MUTATE_SCRATCH", "/tmp")) / f"cpdi-mutate-{rev[:12]}" / "src"
+    if not dest.exists():
+        dest.mkdir(parents=True)
+        tar = subprocess.run(["git", "archive", "--format=tar", rev, "fortran/src"], cwd=REPO, capture_output=True,
+                             check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=tar, check=True)
+    return dest

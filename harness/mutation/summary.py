@@ -1,0 +1,100 @@
+"""The mutation report: reports/mutation/<date>-<sha>/ summary.md, mutants.json, index.html."""
+
+from __future__ import annotations
+
+import html
+import json
+import tomllib
+from collections import defaultdict
+from pathlib import Path
+
+EQUIVALENT = Path(__file__).with_name("equivalent.toml")
+KILLED = ("killed", "killed (time limit)")
+
+
+def equivalent_ids() -> dict[str, str]:
+    """Mutants marked equivalent by hand (reviewed), id -> reason."""
+    if not EQUIVALENT.is_file():
+        return {}
+    return {e["id"]: e["reason"] for e in tomllib.loads(EQUIVALENT.read_text()).get("mutant", [])}
+
+
+def score(rows: list[dict]) -> dict:
+    """Kill rates over the mutants that count (compiled, not marked equivalent), overall and per
+    file, and the share of the killed ones that the fast tier killed."""
+    eq = equivalent_ids()
+
+    def counts(rs):
+        live = [r for r in rs if r["verdict"] in (*KILLED, "survived") and r["id"] not in eq]
+        killed = [r for r in live if r["verdict"] in KILLED]
+        fast = [r for r in killed if r.get("tier") == "fast"]
+        return {"mutants": len(rs), "counted": len(live), "killed": len(killed),
+                "kill_rate": len(killed) / len(live) if live else float("nan"),
+                "killed_by_fast_tier": len(fast) / len(killed) if killed else float("nan"),
+                "no_compile": sum(r["verdict"] == "no-compile" for r in rs),
+                "equivalent": sum(r["id"] in eq for r in rs),
+                "time_limit": sum(r["verdict"] == "killed (time limit)" for r in rs)}
+
+    by_file = defaultdict(list)
+    for r in rows:
+        by_file[r["file"]].append(r)
+    return {"overall": counts(rows), "files": {f: counts(rs) for f, rs in sorted(by_file.items())}}
+
+
+def _pct(x: float) -> str:
+    return "n/a" if x != x else f"{100 * x:.1f} %"
+
+
+def write(out: Path, rows: list[dict], meta: dict) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    sc = score(rows)
+    eq = equivalent_ids()
+    (out / "mutants.json").write_text(json.dumps({"meta": meta, "score": sc, "mutants": rows}, indent=1) + "\n")
+    o = sc["overall"]
+    md = [f"# Mutation testing of the Fortran core ({meta['rev'][:12]}, {meta['date']})", "",
+          f"Sample: {o['mutants']} mutants ({meta['sampling']}); tiers: {meta['tiers']}.", "",
+          f"**Kill rate: {_pct(o['kill_rate'])}** of {o['counted']} counted mutants "
+          f"({o['killed']} killed; {o['no_compile']} did not compile and {o['equivalent']} are marked "
+          f"equivalent: neither counts). Killed by the fast tier: {_pct(o['killed_by_fast_tier'])} of the killed. "
+          f"{o['time_limit']} were killed by the time limit (a hang counts as killed).", "",
+          "| file | mutants | counted | killed | kill rate | fast tier share |", "|---|---|---|---|---|---|"]
+    md += [f"| {f} | {c['mutants']} | {c['counted']} | {c['killed']} | {_pct(c['kill_rate'])} | "
+           f"{_pct(c['killed_by_fast_tier'])} |" for f, c in sc["files"].items()]
+    surv = [r for r in rows if r["verdict"] == "survived" and r["id"] not in eq]
+    md += ["", f"## Survivors ({len(surv)})", ""]
+    md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`" for r in surv]
+    md += ["", "## Every mutant", "", "| mutant | rule | verdict | killed by | s |", "|---|---|---|---|---|"]
+    md += [f"| `{r['file']}:{r['line']}` | `{r['rule'].replace('|', '/')}` | "
+           f"{'equivalent' if r['id'] in eq else r['verdict']} | {r['killed_by']} | {r['seconds']:.0f} |"
+           for r in rows]
+    (out / "summary.md").write_text("\n".join(md) + "\n")
+    _html(out, sc, rows, eq, meta)
+    return sc
+
+
+def _html(out: Path, sc: dict, rows: list[dict], eq: dict, meta: dict) -> None:
+    o = sc["overall"]
+    e = html.escape
+    colour = {"killed": "#dafbe1", "killed (time limit)": "#dafbe1", "survived": "#ffebe9"}
+    body = [f"<h1>Mutation testing of the Fortran core</h1><p>{e(meta['rev'][:12])}, {e(meta['date'])}; "
+            f"{e(meta['sampling'])}; tiers: {e(meta['tiers'])}.</p>",
+            f"<p><b>Kill rate {_pct(o['kill_rate'])}</b> of {o['counted']} counted mutants; fast tier "
+            f"{_pct(o['killed_by_fast_tier'])} of the killed; {o['no_compile']} did not compile; "
+            f"{o['equivalent']} marked equivalent; {o['time_limit']} killed by the time limit.</p>",
+            "<table><tr><th>file</th><th>mutants</th><th>counted</th><th>killed</th><th>kill rate</th></tr>"]
+    body += [f"<tr><td>{e(f)}</td><td>{c['mutants']}</td><td>{c['counted']}</td><td>{c['killed']}</td>"
+             f"<td>{_pct(c['kill_rate'])}</td></tr>" for f, c in sc["files"].items()]
+    body.append("</table><h2>Every mutant</h2><table><tr><th>mutant</th><th>diff</th><th>verdict</th>"
+                "<th>killed by</th><th>s</th></tr>")
+    for r in rows:
+        v = "equivalent: " + eq[r["id"]] if r["id"] in eq else r["verdict"]
+        body.append(f"<tr style='background:{colour.get(r['verdict'], '#f6f8fa')}'><td>{e(r['file'])}:{r['line']}</td>"
+                    f"<td><pre>- {e(r['before'].strip())}\n+ {e(r['after'].strip())}</pre></td><td>{e(v)}</td>"
+                    f"<td>{e(r['killed_by'])}</td><td>{r['seconds']:.0f}</td></tr>")
+    body.append("</table>")
+    style = ("body{font-family:sans-serif;margin:2rem;max-width:1200px} table{border-collapse:collapse} "
+             "td,th{border:1px solid #d0d7de;padding:.2rem .4rem;font-size:.85rem;vertical-align:top} "
+             "pre{margin:0;white-space:pre-wrap}")
+    (out / "index.html").write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>mutation "
+                                    f"{e(meta['rev'][:12])}</title><style>{style}</style></head><body>"
+                                    + "\n".join(body) + "</body></html>\n")
