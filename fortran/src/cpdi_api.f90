@@ -595,7 +595,9 @@ contains
     fill = 0.0_wp
     cell = 0
     call lookup(handle, s, st)
-    if (st%ok()) call sim_prepare(s, st)   ! the grid exists from the start (a snapshot at t = 0)
+    ! the grid exists from the start (a snapshot at t = 0); once it does, preparing again
+    ! would clear its water marks, so only a run that has not been prepared is
+    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) call sim_prepare(s, st)
     if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
       call st%set(CPDI_ERR_STATE, 'no pressure grid: only incompressible runs (solver.fluid = "incompressible") have one')
     if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
