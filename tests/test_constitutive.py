@@ -127,3 +127,16 @@ def test_fluid_viscous_stress_is_two_mu_deviatoric_rate():
 def test_rigid_material_carries_no_stress():
     sig = solver_stress({"model": "rigid", "density": RHO, "velocity": [0.0, 0.0]}, CASES["simple shear"])
     assert np.all(sig == 0.0)
+
+
+@pytest.mark.parametrize("nu", [0.0, 0.3, 0.45])
+def test_stable_step_is_the_p_wave_crossing_time(nu):
+    """An elastic block at rest: the stable explicit step is h / c_p with the P-wave speed
+    c_p = sqrt((lam + 2 mu) / rho) = sqrt((K + 4 G / 3) / rho) of the law's moduli."""
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    parts = block_particles((0.4, 0.4), (0.5, 0.5), 0.05, 2, RHO)
+    sim = make_sim(parts, ncell=(20, 20), h=0.05, gravity=(0.0, 0.0),
+                   materials=[{"model": "hencky", "density": RHO, "youngs_modulus": E, "poisson_ratio": nu}])
+    dt = sim.stable_dt()
+    sim.close()
+    assert dt == pytest.approx(0.05 / np.sqrt((lam + 2 * mu) / RHO), rel=1e-12)
