@@ -15,7 +15,7 @@ APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
 CASE ?= cases/water_column.toml
 THREADS ?=
 
-.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold memcheck lint clean distclean help mutate
+.PHONY: bootstrap sysdeps venv build test verify verify-quick bench run regen-gold memcheck lint clean distclean help mutate mutate-harness
 
 help:
 	@echo "make test          bootstrap, build, run the test suite (Fortran + pytest)"
@@ -26,6 +26,7 @@ help:
 	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
 	@echo "make memcheck      Fortran-only driver under AddressSanitizer + debug flags (leaks, invalid access)"
 	@echo "make mutate        mutation testing of the Fortran core -> reports/mutation/<date>-<sha>/ (SAMPLE=n, RESUME=dir)"
+	@echo "make mutate-harness  mutation testing of the harness's metric and gate code (mutmut)"
 
 # ---------------------------------------------------------------- bootstrap
 sysdeps:
@@ -92,6 +93,11 @@ mutate: build
 	@$(PY) -m pip install -q --disable-pip-version-check \
 	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
 	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME))
+
+mutate-harness: build
+	@$(PY) -m pip install -q --disable-pip-version-check \
+	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
+	@$(PY) -c "from harness.mutation import python_target as p; raise SystemExit(p.main())"
 
 memcheck: venv
 	@test -f $(DEBUG_BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(DEBUG_BUILD) fortran \
