@@ -280,3 +280,68 @@ def test_water_volume_loss_is_zero_for_a_tiling_layer_and_sees_a_collapse() -> N
     # a block above the water is not subtracted
     xa = np.vstack([x, [[0.5, 0.6]]])
     assert water_volume_loss(xa, rb, vb, wb, ~wb, 0.025, 0.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+
+
+# --------------------------------------------------------------------------- sharper cases
+# (make mutate-harness: with r = 2 and p = 2, r**p == r*p and such mutants survived; these use
+# non-integer orders and ratios, and check the messages a user sees)
+
+
+@pytest.mark.parametrize("p", [1.5, 2.5])
+def test_gci_from_errors_non_uniform_ratio_by_hand(p: float) -> None:
+    h = np.array([0.3, 0.2, 0.13])
+    e = 2.0 * h**p
+    e3, e2, e1 = e
+    r21, r32 = h[1] / h[2], h[0] / h[1]
+    res = m.gci_from_errors(h, e, fs=1.25)
+    assert res.p == pytest.approx(p, abs=1e-12) and res.p_medium == pytest.approx(p, abs=1e-12)
+    assert res.gci_fine == pytest.approx(1.25 * abs(e1 - e2) / (r21**p - 1.0), rel=1e-12)
+    assert res.gci_fine == pytest.approx(1.25 * e1, rel=1e-12)
+    assert res.gci_medium == pytest.approx(1.25 * abs(e2 - e3) / (r32**p - 1.0), rel=1e-12)
+    assert res.asymptotic_ratio == pytest.approx(1.0, abs=1e-12)
+    assert abs(res.e_limit) < 1e-9 * e1
+    slope = np.sum((np.log(h) - np.log(h).mean()) * (np.log(e) - np.log(e).mean())) / np.sum(
+        (np.log(h) - np.log(h).mean()) ** 2)
+    assert res.p_lsq == pytest.approx(slope, abs=1e-12)
+
+
+def test_lsq_slope_of_noisy_levels_is_the_least_squares_fit() -> None:
+    h = np.array([0.4, 0.2, 0.1])
+    e = np.array([1.1, 0.24, 0.065])
+    lh, le = np.log(h), np.log(e)
+    slope = np.sum((lh - lh.mean()) * (le - le.mean())) / np.sum((lh - lh.mean()) ** 2)
+    assert m.gci_from_errors(h, e).p_lsq == pytest.approx(slope, rel=1e-12)
+    assert math.isnan(m.gci_from_errors(h, [1.0, 0.0, 0.1]).p_lsq)
+
+
+def test_gci_roache_at_non_integer_ratio_and_order() -> None:
+    f0, c, p, r, fs = 3.0, -1.5, 1.7, 1.5, 1.25
+    f3, f2, f1 = (f0 + c * hv**p for hv in (0.45, 0.3, 0.2))
+    g = m.gci(f1=f1, f2=f2, f3=f3, r=r, fs=fs)
+    assert g.p == pytest.approx(p, abs=1e-10) and g.f_extrapolated == pytest.approx(f0, abs=1e-10)
+    assert g.gci12 == pytest.approx(fs * abs((f1 - f2) / f1) / (r**p - 1.0), rel=1e-10)
+    assert g.gci23 == pytest.approx(fs * abs((f2 - f3) / f2) / (r**p - 1.0), rel=1e-10)
+    assert g.asymptotic_ratio == pytest.approx(g.gci23 / (r**p * g.gci12), rel=1e-12)
+
+
+def test_three_finest_levels_must_be_decreasing_and_positive() -> None:
+    for h in ([0.2, 0.2, 0.1], [0.4, 0.1, 0.1], [0.4, 0.2, 0.0]):
+        with pytest.raises(ValueError, match="positive and decreasing"):
+            m.gci_from_errors(h, [1.0, 0.5, 0.25])
+    with pytest.raises(ValueError, match="at least three levels"):
+        m.gci_from_errors([0.2, 0.1], [1.0, 0.5])
+
+
+def test_norm_messages_name_the_problem() -> None:
+    with pytest.raises(ValueError, match="does not match error count"):
+        m.l2_norm([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="weights must be non-negative"):
+        m.l2_norm([1.0, 2.0], [1.0, -1.0])
+    assert math.isnan(m.l2_norm([]))
+    assert m.l2_norm([2.0]) == 2.0
+
+
+def test_convergence_table_rates_per_row_and_undefined_rate() -> None:
+    table = m.convergence_table([0.4, 0.2, 0.1, 0.05], [1.0, 0.5, 0.125, 0.0], norm_name="L2")
+    rows = table.strip().splitlines()[2:]
+    assert [r.split("|")[3].strip() for r in rows] == ["", "1.00", "2.00", "n/a"]
