@@ -10,6 +10,11 @@ Layout of a report directory (DESIGN.md, "metrics.json" contract)::
     <out_dir>/junit.xml        JUnit XML: a testsuite per check, a testcase per gate (harness.junit)
     <out_dir>/figures/*.png    written by the checks
 
+report.md and index.html are Jinja2 templates (``harness/templates/``); the Markdown that checks
+write (tables, notes, requirements) becomes HTML through markdown-it-py (CommonMark + pipe tables,
+raw HTML shown as text). The HTML page has a table of contents and an anchor per check (its
+``id`` is the check's name).
+
 Everything rendered is derived from ``results.json`` alone, so :func:`rerender`
 reproduces byte-identical output without re-running any check. Non-finite floats are
 stored as ``null`` (strict JSON) and restored to nan on reading.
@@ -18,13 +23,15 @@ stored as ``null`` (strict JSON) and restored to nan on reading.
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
-import re
 import shutil
 from pathlib import Path
 from typing import Any
+
+from jinja2 import Environment, FileSystemLoader, StrictUndefined
+from markdown_it import MarkdownIt
+from markupsafe import Markup
 
 from harness import junit
 from harness.checks.base import CheckResult
@@ -40,7 +47,7 @@ PROVENANCE_ORDER = (
 )  # fmt: skip
 _MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".svg": "image/svg+xml"}
 
-__all__ = ["write_report", "rerender", "build_metrics", "md_to_html"]
+__all__ = ["write_report", "rerender", "build_metrics", "markdown_html"]
 
 
 # --------------------------------------------------------------------------- JSON helpers
@@ -147,10 +154,6 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _slug(name: str) -> str:
-    return "check-" + (re.sub(r"[^A-Za-z0-9_-]+", "-", name).strip("-") or "unnamed")
-
-
 def _figure_path(out_dir: Path, name: str) -> Path:
     """Figures are listed relative to <report>/figures/ (a leading ``figures/`` is tolerated)."""
     name = name.removeprefix("figures/")
@@ -169,107 +172,11 @@ def _gate_status_label(status: str) -> str:
     return "improved: regenerate gold" if status == "improved" else status
 
 
-# --------------------------------------------------------------------------- tiny Markdown -> HTML
+# --------------------------------------------------------------------------- rendering (Jinja2 + markdown-it-py)
 
-
-def _md_inline(text: str) -> str:
-    """Escape HTML and render `code` and **bold** (nothing else)."""
-    parts = re.split(r"(`[^`]*`)", text)
-    out = []
-    for part in parts:
-        if len(part) >= 2 and part.startswith("`") and part.endswith("`"):
-            out.append(f"<code>{html.escape(part[1:-1])}</code>")
-        else:
-            esc = html.escape(part)
-            out.append(re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", esc))
-    return "".join(out)
-
-
-def _split_row(line: str) -> list[str]:
-    """Cells of a pipe-table row; ``\\|`` is a literal pipe."""
-    line = line.strip()
-    if line.startswith("|"):
-        line = line[1:]
-    if line.endswith("|") and not line.endswith("\\|"):
-        line = line[:-1]
-    cells = re.split(r"(?<!\\)\|", line)
-    return [c.strip().replace("\\|", "|") for c in cells]
-
-
-_SEPARATOR = re.compile(r"^\s*\|?\s*:?-{1,}:?\s*(\|\s*:?-{1,}:?\s*)*\|?\s*$")
-
-
-def _align(spec: str) -> str:
-    spec = spec.strip()
-    if spec.startswith(":") and spec.endswith(":"):
-        return "center"
-    if spec.endswith(":"):
-        return "right"
-    return "left" if spec.startswith(":") else ""
-
-
-def _table_to_html(lines: list[str]) -> str:
-    """A Markdown pipe table (header, separator, rows) as an HTML table."""
-    header = _split_row(lines[0])
-    aligns: list[str] = []
-    body = lines[1:]
-    if body and _SEPARATOR.match(body[0]):
-        aligns = [_align(s) for s in _split_row(body[0])]
-        body = body[1:]
-
-    def cell(tag: str, text: str, i: int) -> str:
-        a = aligns[i] if i < len(aligns) else ""
-        style = f' style="text-align:{a}"' if a else ""
-        return f"<{tag}{style}>{_md_inline(text)}</{tag}>"
-
-    out = [
-        "<table>",
-        "<thead><tr>" + "".join(cell("th", h, i) for i, h in enumerate(header)) + "</tr></thead>",
-        "<tbody>",
-    ]
-    for line in body:
-        cells = _split_row(line)
-        out.append("<tr>" + "".join(cell("td", c, i) for i, c in enumerate(cells)) + "</tr>")
-    out.append("</tbody></table>")
-    return "\n".join(out)
-
-
-def md_to_html(text: str) -> str:
-    """Minimal Markdown: pipe tables, ``- `` bullet lists, paragraphs with `code`/**bold**."""
-    blocks: list[str] = []
-    lines = text.strip("\n").splitlines()
-    i = 0
-    while i < len(lines):
-        line = lines[i]
-        if not line.strip():
-            i += 1
-            continue
-        kind = "table" if line.lstrip().startswith("|") else "list" if line.lstrip().startswith(("- ", "* ")) else "p"
-        group = []
-        while i < len(lines) and lines[i].strip():
-            cur = lines[i].lstrip()
-            cur_kind = "table" if cur.startswith("|") else "list" if cur.startswith(("- ", "* ")) else "p"
-            if cur_kind != kind and not (kind == "list" and cur_kind == "p"):
-                break
-            group.append(lines[i])
-            i += 1
-        if kind == "table":
-            blocks.append(_table_to_html(group))
-        elif kind == "list":
-            items: list[str] = []
-            for g in group:
-                s = g.lstrip()
-                if s.startswith(("- ", "* ")):
-                    items.append(s[2:])
-                elif items:  # continuation line
-                    items[-1] += " " + s
-            blocks.append("<ul>" + "".join(f"<li>{_md_inline(it)}</li>" for it in items) + "</ul>")
-        else:
-            blocks.append("<p>" + _md_inline(" ".join(s.strip() for s in group)) + "</p>")
-    return "\n".join(blocks)
-
-
-# --------------------------------------------------------------------------- HTML
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+# CommonMark with GFM pipe tables; raw HTML in check text is shown as text, never passed through.
+_MD = MarkdownIt("commonmark", {"html": False}).enable("table")
 
 _CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, Helvetica, Arial, sans-serif;
@@ -277,10 +184,24 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, Helvetica, Ari
 main { max-width: 1100px; margin: 0 auto; padding: 1.5rem 2rem 4rem; }
 h1 { margin-bottom: .3rem; } h2 { border-bottom: 1px solid #d0d7de; padding-bottom: .3rem; margin-top: 2.2rem; }
 h3 { margin-top: 1.6rem; }
+section, h2 { scroll-margin-top: 1rem; }
+a.anchor { color: #8c959f; text-decoration: none; font-weight: 400; margin-left: .3rem; }
+a.anchor:hover { color: #0969da; }
+nav.toc { font-size: .9rem; background: #f6f8fa; border-bottom: 1px solid #d0d7de; padding: .6rem 2rem; }
+nav.toc .toc-title { font-weight: 700; margin: 0 0 .3rem; }
+nav.toc ol { margin: 0; padding-left: 1.2rem; } nav.toc ol ol { columns: 2; }
+nav.toc a { color: #0969da; text-decoration: none; } nav.toc a:hover { text-decoration: underline; }
+.dot { display: inline-block; width: .6rem; height: .6rem; border-radius: 50%; margin-right: .35rem; }
+.dot.pass { background: #1a7f37; } .dot.fail { background: #cf222e; }
+@media (min-width: 1400px) {
+  nav.toc { position: fixed; top: 0; left: 0; bottom: 0; width: 230px; overflow-y: auto; border-bottom: 0;
+            border-right: 1px solid #d0d7de; padding: 1rem; }
+  nav.toc ol ol { columns: 1; }
+  main { margin-left: calc(230px + max(0px, (100vw - 230px - 1100px) / 2)); }
+}
 table { border-collapse: collapse; margin: .8rem 0; font-size: .92rem; }
 th, td { border: 1px solid #d0d7de; padding: .3rem .6rem; vertical-align: top; }
 th { background: #f6f8fa; text-align: left; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
 code, pre { font-family: ui-monospace, SFMono-Regular, Menlo, Consolas, monospace; font-size: .88em; }
 code { background: #f6f8fa; padding: .1em .3em; border-radius: 4px; }
 pre { white-space: pre-wrap; margin: .3rem 0 0; }
@@ -297,16 +218,30 @@ tr.regressed td { background: #ffebe9; } tr.improved td { background: #fff8c5; }
 tr.failgate td { background: #ffebe9; }
 figure { margin: 1rem 0; } figure img { max-width: 100%; border: 1px solid #d0d7de; }
 figcaption { font-size: .85rem; color: #57606a; }
-.verdict { font-weight: 600; }
+.verdict { font-weight: 600; } .verdict .wall { font-weight: 400; color: #57606a; }
 """
 
 
-def _e(v: Any) -> str:
-    return html.escape(_fmt(v) if not isinstance(v, str) else v)
+def markdown_html(text: str) -> str:
+    """A block of check Markdown (tables, lists, paragraphs) as HTML, by markdown-it-py."""
+    return _MD.render(text.strip("\n")).rstrip("\n")
 
 
-def _badge(passed: bool) -> str:
-    return '<span class="badge pass">PASS</span>' if passed else '<span class="badge fail">FAIL</span>'
+def _inline_markup(text: str) -> Markup:
+    return Markup(_MD.renderInline(text))
+
+
+def _block_markup(text: str) -> Markup:
+    return Markup(markdown_html(text))
+
+
+def _md_cell(v: Any) -> str:
+    s = v if isinstance(v, str) else _fmt(v)
+    return s.replace("|", "\\|").replace("\n", " ")
+
+
+def _pass_word(passed: bool) -> str:
+    return "PASS" if passed else "**FAIL**"
 
 
 def _md_outcome(g) -> str:
@@ -316,101 +251,33 @@ def _md_outcome(g) -> str:
     return f"{g.outcome} (known limitation: {g.known_limitation})"
 
 
-def _gate_badge(g) -> str:
-    """PASS / FAIL, or XFAIL / XPASS for a gate marked as a known limitation."""
-    if g.counts:
-        return _badge(g.passed)
-    return f'<span class="badge known" title="{html.escape(g.known_limitation)}">{g.outcome}</span>'
-
-
-def _html_rows(header: list[str], rows: list[list[str]], row_classes: list[str] | None = None) -> str:
-    """Table from already-escaped cell HTML."""
-    out = ["<table>", "<thead><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr></thead>", "<tbody>"]
-    for i, row in enumerate(rows):
-        cls = row_classes[i] if row_classes and row_classes[i] else ""
-        attr = f' class="{cls}"' if cls else ""
-        out.append(f"<tr{attr}>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>")
-    out.append("</tbody></table>")
-    return "\n".join(out)
-
-
-def _html_figure(out_dir: Path, name: str) -> str:
-    path = _figure_path(out_dir, name)
-    if not path.is_file():
-        return f'<p class="error">Missing figure: <code>{html.escape(name)}</code></p>'
-    mime = _MIME.get(path.suffix.lower(), "application/octet-stream")
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    alt = html.escape(path.name)
-    return f'<figure><img alt="{alt}" src="data:{mime};base64,{data}"><figcaption>{alt}</figcaption></figure>'
-
-
-def _html_check(out_dir: Path, r: CheckResult) -> str:
-    parts = [f'<section id="{_slug(r.name)}">', f"<h3>{html.escape(r.name)} {_badge(r.passed)}</h3>"]
-    if r.error is not None:
-        parts.append(f'<div class="error"><strong>FAILED to run</strong><pre>{html.escape(r.error)}</pre></div>')
-    if r.requirement:
-        parts.append(f"<blockquote>{_md_inline(r.requirement)}</blockquote>")
-    parts.append(
-        f'<p class="verdict">Verdict: {html.escape(r.verdict)} '
-        f'<span style="font-weight:400;color:#57606a">({r.wall_s:.1f} s)</span></p>'
-    )
-    if r.gates:
-        rows = [
-            [
-                html.escape(g.metric),
-                _e(g.value),
-                _e(g.bound),
-                html.escape(g.kind),
-                _gate_badge(g) + (f" {_md_inline(g.note)}" if g.note else "")
-                + (f"<br><em>known limitation:</em> {_md_inline(g.known_limitation)}" if g.known_limitation else ""),
-            ]
-            for g in r.gates
-        ]
-        classes = ["" if g.passed or not g.counts else "failgate" for g in r.gates]
-        parts.append(_html_rows(["metric", "value", "bound", "kind", "pass"], rows, classes))
+def _other_metrics(r: CheckResult) -> list[list[Any]]:
     gated = {g.metric for g in r.gates}
-    extra = {k: v for k, v in r.metrics.items() if k not in gated}
-    if extra:
-        parts.append(_html_rows(["other metric", "value"], [[html.escape(k), _e(v)] for k, v in extra.items()]))
-    parts.extend(md_to_html(t) for t in r.tables)
-    parts.extend(md_to_html(n) for n in r.notes)
-    parts.extend(_html_figure(out_dir, f) for f in r.figures)
-    parts.append("</section>")
-    return "\n".join(parts)
+    return [[k, v] for k, v in r.metrics.items() if k not in gated]
 
 
-def _gate_table(rows: list[dict], with_reason: bool) -> str:
-    body, classes = [], []
-    for row in rows:
-        status = str(row.get("status", ""))
-        badge_cls = {"ok": "pass", "regressed": "fail", "improved": "info"}.get(status, "muted")
-        label = f'<span class="badge {badge_cls}">{html.escape(_gate_status_label(status))}</span>'
-        cells = [_e(row.get(k)) for k in GATE_SUMMARY_FIELDS[:6]] + [label]
-        body.append(cells + ([_e(row.get("reason", ""))] if with_reason else []))
-        classes.append(status if status in ("regressed", "improved") else "")
-    head = list(GATE_SUMMARY_FIELDS) if with_reason else list(GATE_SUMMARY_FIELDS[:7])
-    return _html_rows(head, body, classes)
+_ENV: Environment | None = None
 
 
-def _html_gate_summary(rows: list[dict]) -> str:
-    """Counts, the rows that need attention (with their reasons), and the full table folded."""
-    counts = {k: sum(r.get("status") == k for r in rows) for k in ("ok", "regressed", "improved")}
-    out = ["<h2>Regression gate vs gold</h2>",
-           f"<p>{len(rows)} metrics compared with <code>reference/gold/metrics.json</code>: "
-           f"{counts['ok']} within tolerance, {counts['regressed']} regressed, {counts['improved']} improved.</p>"]
-    attention = [r for r in rows if r.get("status") != "ok"]
-    if attention:
-        out.append(_gate_table(attention, with_reason=True))
-    reasons = sorted({str(r.get("reason", "")) for r in rows if r.get("status") == "ok" and r.get("reason")})
-    out.append("<details><summary>All compared metrics</summary>" + _gate_table(rows, with_reason=False)
-               + "<p>Tolerance reasons:</p><ul>" + "".join(f"<li>{html.escape(x)}</li>" for x in reasons)
-               + "</ul></details>")
-    return "\n".join(out)
+def _env() -> Environment:
+    global _ENV
+    if _ENV is None:
+        env = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=lambda name: bool(name) and
+                          name.endswith(".html.j2"), undefined=StrictUndefined, trim_blocks=True,
+                          lstrip_blocks=True, keep_trailing_newline=True)
+        env.filters.update(fmt=_fmt, md_cell=_md_cell, md=_block_markup, md_inline=_inline_markup)
+        env.globals.update(title=TITLE, quick_banner=QUICK_BANNER, gate_fields=list(GATE_SUMMARY_FIELDS),
+                           pass_word=_pass_word, other_metrics=_other_metrics, status_label=_gate_status_label,
+                           basename=lambda f: Path(f).name,
+                           gate_table=lambda r: [[g.metric, g.value, g.bound, g.kind, _md_outcome(g)] for g in r.gates])
+        _ENV = env
+    return _ENV
 
 
 BENCH_PHASES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection")
 BENCH_HEADER = ["shape", "particles", "threads", "M updates/s (median)", "bytes/particle"] + \
     [f"{p} ns" for p in BENCH_PHASES]
+BENCH_FIGURES = ("bench.png", "bench_phases.png")
 
 
 def _bench_intro(bench: dict) -> str:
@@ -436,28 +303,37 @@ def _bench_summary_rows(bench: dict) -> list[list[str]]:
     return [[k, _fmt(v)] for k, v in (bench.get("summary") or {}).items() if v is not None]
 
 
-def _html_bench(out_dir: Path, bench: dict | None) -> str:
-    if not bench:
-        return ""
-    parts = ['<h2 id="performance">Performance</h2>', f"<p>{html.escape(_bench_intro(bench))}</p>"]
-    if bench.get("summary"):
-        parts.append(_html_rows(["target", "value"], [[html.escape(a), html.escape(b)]
-                                                     for a, b in _bench_summary_rows(bench)]))
-    parts.append(_html_rows(BENCH_HEADER, [[html.escape(c) for c in row] for row in _bench_rows(bench)]))
-    for fig in ("bench.png", "bench_phases.png"):
-        if _figure_path(out_dir, fig).is_file():
-            parts.append(_html_figure(out_dir, fig))
-    return "\n".join(parts)
+def _figure(out_dir: Path, name: str) -> dict[str, str]:
+    """A figure for the HTML page: its bytes as base64 (``data`` empty if the file is missing)."""
+    path = _figure_path(out_dir, name)
+    if not path.is_file():
+        return {"listed": name, "name": path.name, "mime": "", "data": ""}
+    return {"listed": name, "name": path.name, "mime": _MIME.get(path.suffix.lower(), "application/octet-stream"),
+            "data": base64.b64encode(path.read_bytes()).decode("ascii")}
 
 
-def _md_bench(bench: dict | None) -> str:
-    if not bench:
-        return ""
-    parts = ["## Performance", _bench_intro(bench)]
-    if bench.get("summary"):
-        parts.append(_md_table(["target", "value"], _bench_summary_rows(bench)))
-    parts.append(_md_table(BENCH_HEADER, _bench_rows(bench)))
-    return "\n\n".join(parts)
+def _context(results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None,
+             passed: bool, bench: dict | None) -> dict[str, Any]:
+    """What both templates see."""
+    rows = [{**row, "status": str(row.get("status", ""))} for row in gate_summary or []]
+    gate_rows = []
+    for row in rows:
+        status = "**regressed**" if row["status"] == "regressed" else _gate_status_label(row["status"])
+        gate_rows.append([row.get(k) for k in GATE_SUMMARY_FIELDS[:6]] + [status, row.get("reason", "")])
+    return {
+        "results": results, "provenance": provenance, "quick": quick, "passed": passed, "bench": bench,
+        "n_passed": sum(r.passed for r in results),
+        "git_short": str(provenance.get("git_sha", "unknown"))[:12], "date": str(provenance.get("date", "")),
+        "summary_rows": [[r.name, _pass_word(r.passed), r.verdict, f"{r.wall_s:.1f} s"] for r in results],
+        "provenance_rows": _provenance_rows(provenance, quick),
+        "gate_summary": rows, "gate_rows": gate_rows,
+        "gate_attention": [r for r in rows if r["status"] != "ok"],
+        "gate_counts": {k: sum(r["status"] == k for r in rows) for k in ("ok", "regressed", "improved")},
+        "gate_reasons": sorted({str(r.get("reason", "")) for r in rows if r["status"] == "ok" and r.get("reason")}),
+        "bench_intro": _bench_intro(bench) if bench else "",
+        "bench_summary_rows": _bench_summary_rows(bench) if bench else [],
+        "bench_header": BENCH_HEADER, "bench_rows": _bench_rows(bench) if bench else [],
+    }
 
 
 def render_html(
@@ -469,130 +345,22 @@ def render_html(
     passed: bool,
     bench: dict | None = None,
 ) -> str:
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en">',
-        "<head>",
-        '<meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{TITLE}</title>",
-        f"<style>{_CSS}</style>",
-        "</head>",
-        "<body>",
-        "<main>",
-        f"<h1>{TITLE}</h1>",
-    ]
-    if quick:
-        parts.append(f'<div class="banner">{QUICK_BANNER}</div>')
-    parts.append(
-        f"<p>Overall: {_badge(passed)} &nbsp; {sum(r.passed for r in results)}/{len(results)} checks "
-        f"passed &middot; git {html.escape(str(provenance.get('git_sha', 'unknown'))[:12])} &middot; "
-        f"{html.escape(str(provenance.get('date', '')))}</p>"
-    )
-    parts.append("<h2>Summary</h2>")
-    rows = [
-        [
-            f'<a href="#{_slug(r.name)}">{html.escape(r.name)}</a>',
-            _badge(r.passed),
-            html.escape(r.verdict),
-            f"{r.wall_s:.1f} s",
-        ]
-        for r in results
-    ]
-    parts.append(_html_rows(["check", "result", "verdict", "wall time"], rows))
-    parts.append("<h2>Provenance</h2>")
-    parts.append(
-        _html_rows(["key", "value"], [[html.escape(k), html.escape(v)] for k, v in _provenance_rows(provenance, quick)])
-    )
-    if gate_summary:
-        parts.append(_html_gate_summary(gate_summary))
-    parts.append("<h2>Checks</h2>")
-    parts.extend(_html_check(out_dir, r) for r in results)
-    if bench:
-        parts.append(_html_bench(out_dir, bench))
-    parts += ["</main>", "</body>", "</html>"]
-    return "\n".join(parts) + "\n"
-
-
-# --------------------------------------------------------------------------- Markdown
-
-
-def _md_cell(v: Any) -> str:
-    s = v if isinstance(v, str) else _fmt(v)
-    return s.replace("|", "\\|").replace("\n", " ")
-
-
-def _md_table(header: list[str], rows: list[list[Any]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(" --- " for _ in header) + "|"]
-    lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def _pass_word(passed: bool) -> str:
-    return "PASS" if passed else "**FAIL**"
-
-
-def _md_check(r: CheckResult) -> str:
-    parts = [f"### {r.name} — {_pass_word(r.passed)}"]
-    if r.error is not None:
-        parts.append(
-            f"> **FAILED to run:** `{r.error}`"
-            if "\n" not in r.error and "`" not in r.error
-            else "**FAILED to run:**\n\n```\n" + r.error + "\n```"
-        )
-    if r.requirement:
-        parts.append("> " + r.requirement.replace("\n", "\n> "))
-    parts.append(f"**Verdict:** {r.verdict} ({r.wall_s:.1f} s)")
-    if r.gates:
-        parts.append(
-            _md_table(
-                ["metric", "value", "bound", "kind", "pass"],
-                [[g.metric, g.value, g.bound, g.kind, _md_outcome(g)] for g in r.gates],
-            )
-        )
-    gated = {g.metric for g in r.gates}
-    extra = [[k, v] for k, v in r.metrics.items() if k not in gated]
-    if extra:
-        parts.append(_md_table(["other metric", "value"], extra))
-    parts.extend(t.strip("\n") for t in r.tables)
-    parts.extend(n.strip("\n") for n in r.notes)
-    parts.extend(f"![{Path(f).name}](figures/{f.removeprefix('figures/')})" for f in r.figures)
-    return "\n\n".join(parts)
+    """index.html (templates/index.html.j2): a table of contents, an anchor per check (id = its
+    name), every figure embedded as a data: URI."""
+    ctx = _context(results, provenance, quick, gate_summary, passed, bench)
+    ctx["css"] = Markup(_CSS)
+    ctx["figures"] = {r.name: [_figure(out_dir, f) for f in r.figures] for r in results}
+    ctx["bench_figures"] = [_figure(out_dir, f) for f in BENCH_FIGURES if bench and _figure_path(out_dir, f).is_file()]
+    return _env().get_template("index.html.j2").render(ctx)
 
 
 def render_markdown(
     results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None, passed: bool,
     bench: dict | None = None,
 ) -> str:
-    parts = [f"# {TITLE}"]
-    if quick:
-        parts.append(f"> **{QUICK_BANNER}**")
-    parts.append(
-        f"**Overall: {'PASS' if passed else 'FAIL'}** — {sum(r.passed for r in results)}/{len(results)} checks passed"
-    )
-    parts.append("## Summary")
-    parts.append(
-        _md_table(
-            ["check", "result", "verdict", "wall time"],
-            [[r.name, _pass_word(r.passed), r.verdict, f"{r.wall_s:.1f} s"] for r in results],
-        )
-    )
-    parts.append("## Provenance")
-    parts.append(_md_table(["key", "value"], [list(row) for row in _provenance_rows(provenance, quick)]))
-    if gate_summary:
-        parts.append("## Regression gate vs gold")
-        rows = []
-        for row in gate_summary:
-            status = _gate_status_label(str(row.get("status", "")))
-            if row.get("status") == "regressed":
-                status = "**regressed**"
-            rows.append([row.get(k) for k in GATE_SUMMARY_FIELDS[:6]] + [status, row.get("reason", "")])
-        parts.append(_md_table(list(GATE_SUMMARY_FIELDS), rows))
-    parts.append("## Checks")
-    parts.extend(_md_check(r) for r in results)
-    if bench:
-        parts.append(_md_bench(bench))
-    return "\n\n".join(parts) + "\n"
+    """report.md (templates/report.md.j2); figures referenced as figures/NAME."""
+    text = _env().get_template("report.md.j2").render(_context(results, provenance, quick, gate_summary, passed, bench))
+    return text.rstrip("\n") + "\n"
 
 
 # --------------------------------------------------------------------------- entry points

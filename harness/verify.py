@@ -24,23 +24,41 @@ CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking",
 EXPERIMENTAL = ["sinking_block"]
 
 
+def _check_bar(total: int, progress: bool, file=None):
+    """Live per-check progress (checks done / total, the current check, elapsed), on stderr (or
+    ``file``); off with --no-progress and where stderr is not a terminal (CI logs keep the plain lines)."""
+    from tqdm import tqdm
+
+    disable = (None if file is None else False) if progress else True
+    return tqdm(total=total, desc="verify", unit="check", disable=disable, file=file, dynamic_ncols=True,
+                bar_format="{desc}: {n}/{total} checks done{postfix} |{bar}| [{elapsed}]")
+
+
 def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> list[CheckResult]:
+    from tqdm import tqdm
+
     results = []
-    for name in names:
-        mod = importlib.import_module(f"harness.checks.{name}")
-        ctx = CheckContext(out_dir=out_dir, quick=quick, runs_dir=REPO / "runs" / "verify" / name,
-                           progress=progress)
-        ctx.runs_dir.mkdir(parents=True, exist_ok=True)
-        print(f"[verify] {name}: {mod.REQUIREMENT}", flush=True)
-        t0 = time.perf_counter()
-        try:
-            res = mod.run(ctx)
-        except Exception as exc:  # one broken check must not hide the others
-            res = CheckResult(name=name, requirement=mod.REQUIREMENT, error=f"{type(exc).__name__}: {exc}")
-        res.wall_s = time.perf_counter() - t0
-        print(f"[verify] {name}: {'PASS' if res.passed else 'FAIL'} - {res.verdict} ({res.wall_s:.1f} s)",
-              flush=True)
-        results.append(res)
+    with _check_bar(len(names), progress) as bar:
+        for name in names:
+            mod = importlib.import_module(f"harness.checks.{name}")
+            ctx = CheckContext(out_dir=out_dir, quick=quick, runs_dir=REPO / "runs" / "verify" / name,
+                               progress=progress)
+            ctx.runs_dir.mkdir(parents=True, exist_ok=True)
+            bar.set_postfix_str(f"running {name}")
+            tqdm.write(f"[verify] {name}: {mod.REQUIREMENT}", file=sys.stdout)
+            t0 = time.perf_counter()
+            try:
+                res = mod.run(ctx)
+            except Exception as exc:  # one broken check must not hide the others
+                res = CheckResult(name=name, requirement=mod.REQUIREMENT, error=f"{type(exc).__name__}: {exc}")
+            res.wall_s = time.perf_counter() - t0
+            tqdm.write(f"[verify] {name}: {'PASS' if res.passed else 'FAIL'} - {res.verdict} ({res.wall_s:.1f} s)",
+                       file=sys.stdout)
+            sys.stdout.flush()
+            results.append(res)
+            if len(results) == len(names):
+                bar.set_postfix_str("", refresh=False)
+            bar.update(1)
     return results
 
 

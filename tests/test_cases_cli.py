@@ -1,6 +1,7 @@
 """Case loading/validation and the `run` command's outputs (summary, series, HDF5 + XDMF)."""
 
 import json
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -88,6 +89,14 @@ def test_run_writes_the_contract_outputs(tmp_path):
     for key in ("case", "parameters", "steps", "simulated_time", "wall_s", "particles", "particle_updates_per_s"):
         assert key in summary
     assert summary["simulated_time"] == pytest.approx(0.1)
+    # the summary line: wall time and particles x steps per second
+    m = re.search(r"completed t = (\S+) s in (\d+) steps, (\S+) s wall, (\d+) particles, (\S+) M particle-updates/s",
+                  p.stdout)
+    assert m, p.stdout
+    steps, wall, n, rate = int(m[2]), float(m[3]), int(m[4]), float(m[5])
+    assert (steps, n) == (summary["steps"], summary["particles"])
+    assert wall == pytest.approx(summary["wall_s"], abs=0.006)
+    assert rate == pytest.approx(n * steps / summary["wall_s"] / 1e6, abs=0.006)
     header = (out / "series.csv").read_text().splitlines()[0].split(",")
     for col in ("t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y", "front_x", "column_height"):
         assert col in header
@@ -141,3 +150,37 @@ def test_front_probe_ignores_isolated_droplets():
     x = np.array([[0.1, 0.001], [0.11, 0.001], [0.12, 0.001], [0.13, 0.001], [0.5, 0.001]])
     assert front_x(x, 0.01, 0.011, 3) == pytest.approx(0.13)  # 3 particles within 2 spacings
     assert front_x(x, 0.01, 0.011, 1) == pytest.approx(0.5)  # min_count = 1 takes the droplet
+
+
+def test_verify_shows_per_check_progress_and_wall_times(tmp_path, monkeypatch, capsys):
+    """verify's live bar counts the checks done out of the total and names the running check; each
+    check's result line gives its wall time."""
+    import io
+    import types
+
+    from harness import verify
+    from harness.checks.base import CheckResult, Gate
+
+    def fake(name):
+        mod = types.SimpleNamespace(REQUIREMENT=f"{name} holds")
+        mod.run = lambda ctx: CheckResult(name=name, requirement=mod.REQUIREMENT,
+                                          gates=[Gate.at_most("err", 0.1, 1.0)])
+        return mod
+
+    monkeypatch.setattr(verify.importlib, "import_module", lambda path: fake(path.rsplit(".", 1)[1]))
+    monkeypatch.setattr(verify, "REPO", tmp_path)
+    bar_out = io.StringIO()
+    real_bar = verify._check_bar
+    monkeypatch.setattr(verify, "_check_bar", lambda total, progress: real_bar(total, progress, file=bar_out))
+    results = verify.run_checks(["alpha", "beta"], tmp_path / "report", quick=True, progress=True)
+    assert [r.name for r in results] == ["alpha", "beta"] and all(r.passed for r in results)
+    bar = bar_out.getvalue()
+    assert "verify: 0/2 checks done, running alpha" in bar and "1/2 checks done, running beta" in bar
+    assert "2/2 checks done |" in bar
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "[verify] alpha: alpha holds"
+    assert re.fullmatch(r"\[verify\] alpha: PASS - passed \(1 gates\) \(\d+\.\d s\)", lines[1])
+    # --no-progress: no bar at all, the same lines
+    bar_out.truncate(0)
+    verify.run_checks(["alpha"], tmp_path / "report", quick=True, progress=False)
+    assert bar_out.getvalue() == ""
