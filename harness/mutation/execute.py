@@ -13,7 +13,7 @@ import sys
 import tarfile
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from harness.mutation.generate import Mutant
@@ -141,7 +141,8 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
             free.put(w)
 
     with ThreadPoolExecutor(len(workers)) as ex, journal.open("a") as jf:
-        for row in ex.map(one, todo):
+        for fut in as_completed([ex.submit(one, m) for m in todo]):  # journal each as it ends
+            row = fut.result()
             with lock:
                 jf.write(json.dumps(row) + "\n")
                 jf.flush()
