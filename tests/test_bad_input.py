@@ -93,3 +93,63 @@ def test_unknown_material_index():
     with pytest.raises(CpdiError, match="material 4 but only 1"):
         sim.advance(0.01)
     sim.close()
+
+
+# Boundary values of the particle and option checks (make mutate: `>` turned into `>=`, or an
+# index into its neighbour, survived where only values far from the bound were tried).
+@pytest.mark.parametrize("field, value, message", [
+    ("mass", 0.0, "particle 3 has mass"), ("mass", np.inf, "particle 3 has mass"),
+    ("vol", 0.0, "particle 3 has volume"), ("vol", np.inf, "particle 3 has volume"),
+])
+def test_particle_bounds_are_refused_naming_the_particle(field, value, message):
+    parts = good_parts()
+    parts[field] = parts[field].copy()
+    parts[field][2] = value
+    sim = Simulation()
+    sim.set_grid((0, 0), (10, 10), 0.1)
+    sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+    with pytest.raises(CpdiError, match=message):
+        sim.set_particles(**parts)
+    sim.close()
+
+
+@pytest.mark.parametrize("r", [[0.05, 0.0, 0.0, 0.0], [0.05, 0.02, 0.05, 0.02], [0.0, 0.05, 0.05, 0.0],
+                               [0.05, 0.01, 0.01, 0.002]])
+def test_degenerate_or_inverted_domain_is_refused_naming_the_particle(r):
+    """r1 x r2 = r11 r22 - r21 r12 <= 0: zero area (a line), or clockwise (inverted)."""
+    parts = good_parts()
+    parts["r"] = parts["r"].copy()
+    parts["r"][4] = r   # [r1x, r1y, r2x, r2y]
+    sim = Simulation()
+    sim.set_grid((0, 0), (10, 10), 0.1)
+    sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+    with pytest.raises(CpdiError, match="particle 5 has a degenerate or inverted domain"):
+        sim.set_particles(**parts)
+    ok = parts["r"][4].copy()
+    parts["r"][4] = [0.05, 0.01, -0.01, 0.05]   # rotated, positive area: accepted
+    sim.set_particles(**parts)
+    parts["r"][4] = ok
+    sim.close()
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"lcrit": 1.0 + 1e-9}, "lcrit"), ({"lcrit": 0.0}, "lcrit"), ({"flip": 1.0 + 1e-9}, "flip"),
+    ({"damping": 1.0}, "damping"), ({"projection_stabilization": 1.0 + 1e-9}, "stabilisation"),
+])
+def test_option_bounds_are_refused(options, message):
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    with pytest.raises(CpdiError, match=message):
+        sim.set_options(**options)
+    edge = {k: (1.0 if k != "damping" else 0.999) for k in options}  # the bound itself is allowed
+    if "lcrit" not in options or options["lcrit"] > 0:
+        sim.set_options(**edge)
+    sim.close()
+
+
+def test_friction_must_be_finite():
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    n = len(good_parts()["x"])
+    with pytest.raises(CpdiError, match="friction"):
+        sim.set_bodies(np.ones(n, dtype=np.int32), contact=True, friction=np.inf)
+    sim.set_bodies(np.ones(n, dtype=np.int32), contact=True, friction=1e300)
+    sim.close()

@@ -209,8 +209,8 @@ contains
         write (buf, '(a,i0,a,es11.3,a)') 'particle ', ip, ' has volume ', vol(ip), &
           '; volumes must be positive and finite'
         call st%set(CPDI_ERR_INPUT, trim(buf))
-      else if (any(r(1, :)*r(4, :) - r(2, :)*r(3, :) <= 0.0_wp)) then
-        ip = findloc(r(1, :)*r(4, :) - r(2, :)*r(3, :) <= 0.0_wp, .true., 1)
+      else if (any(.not. domain_ok(r))) then
+        ip = findloc(domain_ok(r), .false., 1)
         write (buf, '(a,i0,a)') 'particle ', ip, ' has a degenerate or inverted domain (r1 x r2 <= 0); '// &
           'give r1, r2 counter-clockwise with positive area'
         call st%set(CPDI_ERR_INPUT, trim(buf))
@@ -958,4 +958,19 @@ contains
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_full_state
+  elemental logical function area_ok(r1x, r1y, r2x, r2y)
+    !! A particle domain r1 x r2 has positive area, beyond round-off: the cross product
+    !! r1x r2y - r1y r2x above 1e-12 |r1| |r2| (a zero-area domain can come out as a tiny
+    !! positive number when the compiler fuses the products).
+    real(c_double), intent(in) :: r1x, r1y, r2x, r2y
+    area_ok = r1x*r2y - r1y*r2x > 1.0e-12_wp*hypot(r1x, r1y)*hypot(r2x, r2y)
+  end function area_ok
+
+  pure function domain_ok(r) result(ok)
+    !! area_ok of every particle's domain vectors r(1:4, ip) = [r1x, r1y, r2x, r2y].
+    real(c_double), intent(in) :: r(:, :)
+    logical :: ok(size(r, 2))
+    ok = area_ok(r(1, :), r(2, :), r(3, :), r(4, :))
+  end function domain_ok
+
 end module cpdi_api
