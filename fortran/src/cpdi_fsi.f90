@@ -77,7 +77,9 @@ contains
     call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st, &
                      s%g%m(:, 1), s%g%vx(:, 1), s%g%vy(:, 1), s%g%fx(:, 1), s%g%fy(:, 1))
     if (.not. st%ok()) return
-    ! the projection's increments on the solids' nodes (rigid nodes keep their velocity)
+    ! the projection's increments on the solids' nodes (rigid nodes keep their velocity);
+    ! the force of the water on the solids is their momentum change over dt
+    s%inc%fsolid = [sum(s%g%m(:, 1)*s%g%fx(:, 1)), sum(s%g%m(:, 1)*s%g%fy(:, 1))]/dt
     where (s%g%m(:, 1) > s%mtol)
       s%g%vx(:, 1) = s%g%vx(:, 1) + s%g%fx(:, 1)
       s%g%vy(:, 1) = s%g%vy(:, 1) + s%g%fy(:, 1)

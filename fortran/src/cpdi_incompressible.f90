@@ -27,7 +27,7 @@ module cpdi_incompressible
   use cpdi_schedule, only: NCHUNK, chunk_range
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
-                           mac_extrapolate, mac_ghost_pressure, surface_theta, CELL_FLUID, CELL_AIR, CELL_SOLID
+                           mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
   implicit none
   private
 
@@ -60,7 +60,7 @@ module cpdi_incompressible
     real(wp), allocatable :: us(:), vs(:)     !! solid face velocities (from the nodes, before projection)
     real(wp), allocatable :: umx(:), vmx(:)   !! mixture face velocities before projection
     real(wp), allocatable :: nwx(:), nwy(:)   !! nodal weights of the face-to-node return
-    real(wp) :: fsolid(2) = 0.0_wp     !! pressure force on the solids of the last step [N/m]
+    real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
   end type incomp_t
 
   public :: incomp_prepare, incomp_step, incomp_transfer_cycle
@@ -541,8 +541,7 @@ contains
   subroutine faces_to_solid(ic, nm, mtol, dvx, dvy)
     !! After the projection: each solid face's velocity change (the shared face velocity minus
     !! the solid's own) goes back to its two nodes, averaged over a node's faces by solid face
-    !! mass. fsolid: the pressure force on the solids, - sum_f V_s,f (grad p)_f (the solid
-    !! volume's share of each face's pressure impulse; the gradient as the projection takes it).
+    !! mass.
     type(incomp_t), intent(inout) :: ic
     real(wp), intent(in) :: nm(:), mtol
     real(wp), intent(inout) :: dvx(:), dvy(:)
@@ -553,7 +552,6 @@ contains
     dvy = 0.0_wp
     ic%nwx = 0.0_wp
     ic%nwy = 0.0_wp
-    ic%fsolid = 0.0_wp
     associate (mc => ic%mc)
       do j = 1, mc%nn(2) - 1
         do i = 1, n1 - 1
@@ -566,7 +564,6 @@ contains
             dvx(kb) = dvx(kb) + wm*d
             ic%nwx(k) = ic%nwx(k) + wm
             ic%nwx(kb) = ic%nwx(kb) + wm
-            ic%fsolid(1) = ic%fsolid(1) - ic%uvs(k)*face_grad(k - 1, k)
           end if
           if (ic%vsm(k) > mtol) then
             kb = k + 1
@@ -576,7 +573,6 @@ contains
             dvy(kb) = dvy(kb) + wm*d
             ic%nwy(k) = ic%nwy(k) + wm
             ic%nwy(kb) = ic%nwy(kb) + wm
-            ic%fsolid(2) = ic%fsolid(2) - ic%vvs(k)*face_grad(k - n1, k)
           end if
         end do
       end do
@@ -591,21 +587,6 @@ contains
     elsewhere
       dvy = 0.0_wp
     end where
-  contains
-    real(wp) function face_grad(cl, cr)
-      !! Pressure gradient across the face between cells cl and cr (ghost fluid at a surface).
-      integer(ik), intent(in) :: cl, cr
-      associate (mc => ic%mc)
-        face_grad = 0.0_wp
-        if (mc%cell(cl) == CELL_FLUID .and. mc%cell(cr) == CELL_FLUID) then
-          face_grad = (mc%p(cr) - mc%p(cl))/mc%h
-        else if (mc%cell(cl) == CELL_FLUID .and. mc%cell(cr) == CELL_AIR) then
-          face_grad = -mc%p(cl)/(surface_theta(mc%fill(cl), mc%fill(cr))*mc%h)
-        else if (mc%cell(cr) == CELL_FLUID .and. mc%cell(cl) == CELL_AIR) then
-          face_grad = mc%p(cr)/(surface_theta(mc%fill(cr), mc%fill(cl))*mc%h)
-        end if
-      end associate
-    end function face_grad
   end subroutine faces_to_solid
 
   subroutine volume_correction(ic, dt, diag, converged, timers, t0)
