@@ -77,15 +77,9 @@ contains
     call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st, &
                      s%g%m(:, 1), s%g%vx(:, 1), s%g%vy(:, 1), s%g%fx(:, 1), s%g%fy(:, 1))
     if (.not. st%ok()) return
-    ! the projection's increments on the solids' nodes (rigid nodes keep their velocity);
-    ! the force of the water on the solids is their momentum change over dt
-    s%inc%fsolid = [sum(s%g%m(:, 1)*s%g%fx(:, 1)), sum(s%g%m(:, 1)*s%g%fy(:, 1))]/dt
-    where (s%g%m(:, 1) > s%mtol)
-      s%g%vx(:, 1) = s%g%vx(:, 1) + s%g%fx(:, 1)
-      s%g%vy(:, 1) = s%g%vy(:, 1) + s%g%fy(:, 1)
-    end where
-    if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
-    call grid_apply_walls(s%g, s%g%vx(:, 1), s%g%vy(:, 1))
+    ! the solid particles gather the projection's change of their face velocities with the face
+    ! weights their mass went to the faces with (momentum-conserving); the force of the water
+    ! on the solids is that momentum change over dt (solid_g2p)
     call solid_g2p(s, dt, st)
     if (.not. st%ok()) return
     s%dt_last = dt
@@ -163,7 +157,7 @@ contains
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, a, k, nclamp
-    real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
+    real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), dp(2), fs(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
     logical :: closed(4)
     character(len=300) :: buf
     fl = s%opt%flip
@@ -174,6 +168,7 @@ contains
     mom = 0.0_wp
     wg = 0.0_wp
     nclamp = 0
+    fs = 0.0_wp
     associate (g => s%g, p => s%p)
       do ip = 1, p%n
         if (s%fluid(p%mat(ip))) cycle
@@ -192,6 +187,22 @@ contains
             dv = dv + wk*[g%vx(k, 1) - g%px(k, 1), g%vy(k, 1) - g%py(k, 1)]
             l = l + [g%vx(k, 1)*gxk, g%vy(k, 1)*gxk, g%vx(k, 1)*gyk, g%vy(k, 1)*gyk]
           end do
+          dp = 0.0_wp   ! the projection's change, from the faces
+          do a = 1, shape_count(s%inc%shu, ip)
+            call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
+            dp(1) = dp(1) + wk*s%inc%us(k)
+            l(1) = l(1) + s%inc%us(k)*gxk
+            l(3) = l(3) + s%inc%us(k)*gyk
+          end do
+          do a = 1, shape_count(s%inc%shv, ip)
+            call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
+            dp(2) = dp(2) + wk*s%inc%vs(k)
+            l(2) = l(2) + s%inc%vs(k)*gxk
+            l(4) = l(4) + s%inc%vs(k)*gyk
+          end do
+          vn = vn + dp
+          dv = dv + dp
+          fs = fs + p%m(ip)*dp/dt
           p%v(:, ip) = fl*(p%v(:, ip) + dv) + (1.0_wp - fl)*vn
           p%x(:, ip) = xo + dt*vn
           call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
@@ -215,6 +226,7 @@ contains
         wg = wg + p%m(ip)*dot_product(s%opt%gravity, p%x(:, ip) - xo)
       end do
     end associate
+    s%inc%fsolid = fs
     s%diag(4) = s%diag(4) + ke
     s%diag(6) = s%diag(6) + mom(1)
     s%diag(7) = s%diag(7) + mom(2)

@@ -57,7 +57,7 @@ module cpdi_incompressible
     real(wp), allocatable :: usm(:), vsm(:)   !! solid face masses
     real(wp), allocatable :: uvw(:), vvw(:)   !! water face volumes
     real(wp), allocatable :: uvs(:), vvs(:)   !! solid face volumes
-    real(wp), allocatable :: us(:), vs(:)     !! solid face velocities (from the nodes, before projection)
+    real(wp), allocatable :: us(:), vs(:)     !! solid face velocities before projection; after it, their change
     real(wp), allocatable :: umx(:), vmx(:)   !! mixture face velocities before projection
     real(wp), allocatable :: nwx(:), nwy(:)   !! nodal weights of the face-to-node return
     real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
@@ -559,6 +559,7 @@ contains
           if (ic%usm(k) > mtol) then
             kb = k + n1
             d = mc%u(k) - ic%us(k)
+            ic%us(k) = d   ! from here on: the solid's velocity change on the face
             wm = ic%usm(k)
             dvx(k) = dvx(k) + wm*d
             dvx(kb) = dvx(kb) + wm*d
@@ -568,6 +569,7 @@ contains
           if (ic%vsm(k) > mtol) then
             kb = k + 1
             d = mc%v(k) - ic%vs(k)
+            ic%vs(k) = d
             wm = ic%vsm(k)
             dvy(k) = dvy(k) + wm*d
             dvy(kb) = dvy(kb) + wm*d
