@@ -315,8 +315,8 @@ class Simulation:
         return {"pressure": p, "fill": fill, "water": cell}
 
     def solid_force(self) -> np.ndarray:
-        """Force [N/m] of incompressible water on the solids coupled to it in the last step (their
-        nodes' momentum change by the projection over dt; zeros otherwise)."""
+        """Force [N/m] of incompressible water on the solids coupled to it in the last step (the solid
+        particles' momentum change by the projection over dt; zeros otherwise)."""
         return np.asarray(_call("cpdi_solid_force", self._handle), dtype=float)
 
     def face_velocity(self) -> tuple[np.ndarray, np.ndarray]:

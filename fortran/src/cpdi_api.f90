@@ -504,7 +504,7 @@ contains
 
   subroutine cpdi_solid_force(handle, f, ierr, msg)
     !! Force [N per m of depth] of incompressible water on the solids coupled to it in the last
-    !! step: the solid nodes' momentum change by the projection over dt (0 otherwise).
+    !! step: the solid particles' momentum change by the projection over dt (0 otherwise).
     integer(c_int), intent(in) :: handle
     real(c_double), intent(out) :: f(2)
     integer(c_int), intent(out) :: ierr
