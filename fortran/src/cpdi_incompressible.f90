@@ -60,6 +60,7 @@ module cpdi_incompressible
     real(wp), allocatable :: us(:), vs(:)     !! solid face velocities before projection; after it, their change
     real(wp), allocatable :: umx(:), vmx(:)   !! mixture face velocities before projection
     real(wp), allocatable :: nwx(:), nwy(:)   !! nodal weights of the face-to-node return
+    real(wp), allocatable :: fillw(:)         !! cell fill of the water alone (the volume correction's target)
     real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
   end type incomp_t
 
@@ -140,10 +141,10 @@ contains
       if (.not. realloc) realloc = size(ic%usm) /= g%nnodes
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
-                                           ic%vmx, ic%nwx, ic%nwy)
+                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
-                  ic%nwx(g%nnodes), ic%nwy(g%nnodes), stat=m)
+                  ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -270,6 +271,7 @@ contains
           do i = 0, 1
             k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
             mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*vp*av
+            if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wx(i + 1)*wy(j + 1)*vp*av
           end do
         end do
       end do
@@ -303,6 +305,7 @@ contains
       ic%vvs = 0.0_wp
       ic%mc%ua = 1.0_wp
       ic%mc%va = 1.0_wp
+      ic%fillw = 0.0_wp
     end subroutine clear_coupled
 
     subroutine mark_rigid()
@@ -606,10 +609,18 @@ contains
     ic%mc%uc = 0.0_wp
     ic%mc%vc = 0.0_wp
     if (ic%beta == 0.0_wp) return
-    if (.not. any(ic%mc%fill > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    if (ic%coupled) then   ! the water's own over-filling only: a solid's volume is not packing
+      if (.not. any(ic%fillw > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    else
+      if (.not. any(ic%mc%fill > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    end if
     call swap(ic%mc%u, ic%mc%uc)   ! u, v: zero; uc, vc: the flow's face velocities
     call swap(ic%mc%v, ic%mc%vc)
-    call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
+    if (ic%coupled) then
+      call mac_assemble(ic%mc, dt, ic%rho, ic%beta, ic%fillw)
+    else
+      call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
+    end if
     call toc(timers, 3, t0)
     call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
     call toc(timers, 8, t0)

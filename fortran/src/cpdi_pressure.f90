@@ -161,13 +161,16 @@ contains
     end if
   end function surface_theta
 
-  subroutine mac_assemble(mc, dt, rho, beta)
+  subroutine mac_assemble(mc, dt, rho, beta, qfill)
     !! Matrix (5-point, ghost-fluid surface) and right-hand side of the pressure equation
     !! A p = (rho h^2 / dt) (q - div u) on the water cells, from the face velocities u, v.
     !! Each face enters with its coefficient ua, va = rho / rho_face (1 on water faces; a
     !! face shared with a solid has the mixture's density, cpdi_incompressible).
+    !! q = beta (f - 1) / dt where f > 1, f the cell fill, or qfill when given (coupled runs:
+    !! the water's own fill, so the correction never pushes water off a solid).
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho, beta
+    real(wp), intent(in), optional :: qfill(:)
     integer(ik) :: i, j, c, n1, nb(4), a
     real(wp) :: scale, div, qv, af(4)
     n1 = mc%nn(1)
@@ -203,7 +206,11 @@ contains
         end do
         div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
         qv = 0.0_wp
-        if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
+        if (present(qfill)) then
+          if (qfill(c) > 1.0_wp) qv = beta*(qfill(c) - 1.0_wp)/dt
+        else
+          if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
+        end if
         mc%b(c) = scale*(qv - div)
       end do
     end do
