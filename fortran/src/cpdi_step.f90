@@ -124,7 +124,8 @@ contains
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     if (s%contact) then
-      call st%set(CPDI_ERR_INPUT, 'contact is not available with fluid = "incompressible"; '// &
+      call st%set(CPDI_ERR_INPUT, 'contact is not available with fluid = "incompressible" (solids couple '// &
+                  'to it as one continuum with a no-slip interface; slip interfaces are not built yet); '// &
                   'set [contact] enabled = false or use fluid = "weakly_compressible"')
       return
     end if
