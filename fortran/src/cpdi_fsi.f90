@@ -45,6 +45,7 @@ contains
       if (.not. st%ok()) return
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
+    s%inc%smax_w = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
     call solid_stress(s, cs, st)
     if (.not. st%ok()) return
     s%smax = max(s%smax, cs)
@@ -74,9 +75,11 @@ contains
       return
     end if
     call solid_p2g(s, dt)
+    s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
     call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st, &
                      s%g%m(:, 1), s%g%vx(:, 1), s%g%vy(:, 1), s%g%fx(:, 1), s%g%fy(:, 1))
     if (.not. st%ok()) return
+    s%inc%smax_w = s%smax   ! the water's signal speed (incomp_step); the solids' joins it below
     ! the solid particles gather the projection's change of their face velocities with the face
     ! weights their mass went to the faces with (momentum-conserving); the force of the water
     ! on the solids is that momentum change over dt (solid_g2p)

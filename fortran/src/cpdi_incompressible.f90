@@ -61,6 +61,8 @@ module cpdi_incompressible
     real(wp), allocatable :: umx(:), vmx(:)   !! mixture face velocities before projection
     real(wp), allocatable :: nwx(:), nwy(:)   !! nodal weights of the face-to-node return
     real(wp), allocatable :: fillw(:)         !! cell fill of the water alone (the volume correction's target)
+    real(wp) :: dt_corr = 0.0_wp       !! coupled: the water's own step, the volume correction's time scale
+    real(wp) :: smax_w = 0.0_wp        !! coupled: the water's signal speed of the last step
     real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
   end type incomp_t
 
@@ -605,6 +607,7 @@ contains
     real(wp), intent(inout) :: diag(:), timers(:)
     logical, intent(out) :: converged
     integer(int64), intent(inout) :: t0
+    real(wp) :: dtc
     converged = .true.
     ic%mc%uc = 0.0_wp
     ic%mc%vc = 0.0_wp
@@ -616,8 +619,13 @@ contains
     end if
     call swap(ic%mc%u, ic%mc%uc)   ! u, v: zero; uc, vc: the flow's face velocities
     call swap(ic%mc%v, ic%mc%vc)
+    dtc = dt
     if (ic%coupled) then
-      call mac_assemble(ic%mc, dt, ic%rho, ic%beta, ic%fillw)
+      ! coupled runs step at the solid's acoustic limit, far below the water's own step: the
+      ! packing error is undone at the water's rate beta / (its own step), not beta per
+      ! (tiny) step, which moved water ~ beta (fill - 1) h every step and lifted it (cpdi_fsi)
+      dtc = max(dt, ic%dt_corr)
+      call mac_assemble(ic%mc, dtc, ic%rho, ic%beta, ic%fillw)
     else
       call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
     end if
@@ -627,7 +635,7 @@ contains
     diag(15) = real(ic%mc%iters, wp)
     diag(17) = diag(17) + real(ic%mc%iters, wp)
     if (converged) then
-      call mac_project(ic%mc, dt, ic%rho)
+      call mac_project(ic%mc, dtc, ic%rho)
       call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
       call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
     end if
