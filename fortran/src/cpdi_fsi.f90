@@ -188,20 +188,19 @@ contains
             call shape_slot(s%sh, ip, a, k, wk, gxk, gyk)
             vn = vn + wk*[g%vx(k, 1), g%vy(k, 1)]
             dv = dv + wk*[g%vx(k, 1) - g%px(k, 1), g%vy(k, 1) - g%py(k, 1)]
-            l = l + [g%vx(k, 1)*gxk, g%vy(k, 1)*gxk, g%vx(k, 1)*gyk, g%vy(k, 1)*gyk]
+            ! the velocity gradient from the nodes alone (the stress divergence's operator): v*
+            ! plus the projection's change returned to the nodes (fx, fy: incomp_step's dvx, dvy)
+            l = l + [(g%vx(k, 1) + g%fx(k, 1))*gxk, (g%vy(k, 1) + g%fy(k, 1))*gxk, &
+                     (g%vx(k, 1) + g%fx(k, 1))*gyk, (g%vy(k, 1) + g%fy(k, 1))*gyk]
           end do
           dp = 0.0_wp   ! the projection's change, from the faces
           do a = 1, shape_count(s%inc%shu, ip)
             call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
             dp(1) = dp(1) + wk*s%inc%us(k)
-            l(1) = l(1) + s%inc%us(k)*gxk
-            l(3) = l(3) + s%inc%us(k)*gyk
           end do
           do a = 1, shape_count(s%inc%shv, ip)
             call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
             dp(2) = dp(2) + wk*s%inc%vs(k)
-            l(2) = l(2) + s%inc%vs(k)*gxk
-            l(4) = l(4) + s%inc%vs(k)*gyk
           end do
           vn = vn + dp
           dv = dv + dp
