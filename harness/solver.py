@@ -314,6 +314,18 @@ class Simulation:
         p, fill, cell = _call("cpdi_grid_pressure", self._handle, nx, ny)
         return {"pressure": p, "fill": fill, "water": cell}
 
+    def solid_force(self) -> np.ndarray:
+        """Force [N/m] of incompressible water on the solids coupled to it in the last step (the solid
+        particles' momentum change by the projection over dt; zeros otherwise)."""
+        return np.asarray(_call("cpdi_solid_force", self._handle), dtype=float)
+
+    def face_velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """Face velocities of an incompressible run after its last step: u (nx + 1, ny) on the
+        cells' left faces, v (nx, ny + 1) on their bottom faces."""
+        nx, ny = self._ncell
+        u, v = _call("cpdi_face_velocity", self._handle, nx, ny)
+        return u, v
+
     def transfer_cycle(self) -> None:
         """Incompressible runs only: particle-to-grid transfer to the face lattices and back,
         nothing else (PIC, or APIC with transfer = 'apic')."""

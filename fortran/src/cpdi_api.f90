@@ -37,6 +37,7 @@ module cpdi_api
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
+  public :: cpdi_solid_force, cpdi_face_velocity
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
@@ -501,6 +502,21 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_get_diag
 
+  subroutine cpdi_solid_force(handle, f, ierr, msg)
+    !! Force [N per m of depth] of incompressible water on the solids coupled to it in the last
+    !! step: the solid particles' momentum change by the projection over dt (0 otherwise).
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: f(2)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    f = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) f = s%inc%fsolid
+    call finish(st, ierr, msg)
+  end subroutine cpdi_solid_force
+
   subroutine cpdi_get_timers(handle, timers, ierr, msg)
     !! Seconds spent per phase: shape, P2G, grid, G2P, deformation, stress, projection.
     integer(c_int), intent(in) :: handle
@@ -579,6 +595,34 @@ contains
       end if
     end subroutine set_real
   end subroutine cpdi_set_option
+
+  subroutine cpdi_face_velocity(handle, nx, ny, u, v, ierr, msg)
+    !! Face velocities after the last step of an incompressible run, (nx, ny) = cells:
+    !! u(i, j) on the left face of cell (i, j) (i = nx + 1: the right wall), v(i, j) on its
+    !! bottom face (j = ny + 1: the top).
+    integer(c_int), intent(in) :: handle, nx, ny
+    real(c_double), intent(out) :: u(nx + 1, ny), v(nx, ny + 1)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: j, k0
+    u = 0.0_wp
+    v = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
+      call st%set(CPDI_ERR_STATE, 'no face velocities: they exist once an incompressible run has been prepared')
+    if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
+      call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    if (st%ok()) then
+      do j = 1, ny + 1
+        k0 = s%inc%mc%lo(1) + (s%inc%mc%lo(2) + j - 2)*s%inc%mc%nn(1)
+        if (j <= ny) u(:, j) = s%inc%mc%u(k0:k0 + nx)
+        v(:, j) = s%inc%mc%v(k0:k0 + nx - 1)
+      end do
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_face_velocity
 
   subroutine cpdi_grid_pressure(handle, nx, ny, p, fill, cell, ierr, msg)
     !! Pressure [Pa] (0 outside the water), fill fraction and kind (0 air, 1 water) of the

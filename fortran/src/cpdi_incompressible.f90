@@ -19,15 +19,15 @@ module cpdi_incompressible
   !! viscous limit), not the speed of sound.
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
-  use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_SOLVE, &
+  use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_ALLOC, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_SOLVE, &
                          CPDI_ERR_NAN
   use cpdi_grid, only: grid_t, hold_on_walls, WALL_OPEN, GRID_PAD
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: NCHUNK, chunk_range
-  use cpdi_materials, only: material_t, MAT_FLUID
+  use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
-                           mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR
+                           mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
   implicit none
   private
 
@@ -49,6 +49,21 @@ module cpdi_incompressible
     type(shape_t) :: shu, shv          !! weights of every particle on them
     type(mac_t) :: mc                  !! staggered fields and the pressure system
     real(wp) :: red(8, NCHUNK) = 0.0_wp
+    ! Solids coupled to the water (docs/fsi_incompressible.md): a single continuum on the faces.
+    logical :: coupled = .false.       !! solid particles take part (cpdi_fsi drives the step)
+    logical, allocatable :: solid(:)   !! per material: a deformable solid (its mass joins the faces)
+    logical, allocatable :: rigid(:)   !! per material: a rigid body (its cells bound the water)
+    real(wp), allocatable :: rvel(:, :) !! per material: a rigid body's prescribed velocity
+    real(wp), allocatable :: usm(:), vsm(:)   !! solid face masses
+    real(wp), allocatable :: uvw(:), vvw(:)   !! water face volumes
+    real(wp), allocatable :: uvs(:), vvs(:)   !! solid face volumes
+    real(wp), allocatable :: us(:), vs(:)     !! solid face velocities before projection; after it, their change
+    real(wp), allocatable :: umx(:), vmx(:)   !! mixture face velocities before projection
+    real(wp), allocatable :: nwx(:), nwy(:)   !! nodal weights of the face-to-node return
+    real(wp), allocatable :: fillw(:)         !! cell fill of the water alone (the volume correction's target)
+    real(wp) :: dt_corr = 0.0_wp       !! coupled: the water's own step, the volume correction's time scale
+    real(wp) :: smax_w = 0.0_wp        !! coupled: the water's signal speed of the last step
+    real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
   end type incomp_t
 
   public :: incomp_prepare, incomp_step, incomp_transfer_cycle
@@ -72,14 +87,17 @@ contains
     used = .false.
     used(p%mat) = .true.
     first = 0
+    if (allocated(ic%solid)) deallocate (ic%solid, ic%rigid, ic%rvel)
+    allocate (ic%solid(size(mats)), ic%rigid(size(mats)), ic%rvel(2, size(mats)))
+    ic%rigid = mats%model == MAT_RIGID
+    ic%solid = mats%model /= MAT_FLUID .and. .not. ic%rigid
+    do m = 1, size(mats)
+      ic%rvel(:, m) = mats(m)%vel
+    end do
+    ic%coupled = any((ic%solid .or. ic%rigid) .and. used)
     do m = 1, size(mats)
       if (.not. used(m)) cycle
-      if (mats(m)%model /= MAT_FLUID) then
-        write (buf, '(a,i0,a)') 'material ', m, ' is not a newtonian_fluid: fluid = "incompressible" '// &
-          'handles water only (solids coupled to it are not built yet); use fluid = "weakly_compressible"'
-        call st%set(CPDI_ERR_INPUT, trim(buf))
-        return
-      end if
+      if (mats(m)%model /= MAT_FLUID) cycle
       if (first == 0) then
         first = m
       else if (mats(m)%rho0 /= mats(first)%rho0 .or. mats(m)%visc /= mats(first)%visc) then
@@ -89,6 +107,11 @@ contains
         return
       end if
     end do
+    if (first == 0) then
+      call st%set(CPDI_ERR_INPUT, 'fluid = "incompressible" needs a newtonian_fluid material (the water); '// &
+                  'add one, or use fluid = "weakly_compressible"')
+      return
+    end if
     if (damping /= 0.0_wp) then
       call st%set(CPDI_ERR_INPUT, 'damping is not available with fluid = "incompressible" (water at rest is '// &
                   'exactly at rest without it); set [solver] damping = 0')
@@ -115,6 +138,30 @@ contains
     end if
     call mac_mark_outside(ic%mc, g%walls /= WALL_OPEN)
     if (ic%maxit == 0) ic%maxit = int(4.0_wp*sqrt(real(product(g%ncell), wp))) + 200
+    if (ic%coupled) then
+      realloc = .not. allocated(ic%usm)
+      if (.not. realloc) realloc = size(ic%usm) /= g%nnodes
+      if (realloc) then
+        if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
+                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw)
+        allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
+                  ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
+                  ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), stat=m)
+        if (m /= 0) then
+          call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
+          return
+        end if
+      end if
+      do m = 1, p%n   ! the water only: the solids keep their deformation
+        if (ic%solid(p%mat(m)) .or. ic%rigid(p%mat(m))) cycle
+        p%F(:, m) = [1.0_wp, 0.0_wp, 0.0_wp, 1.0_wp]
+        p%vol(m) = p%vol0(m)
+        p%jbar(m) = 1.0_wp
+        p%r(:, m) = p%r0(:, m)
+        p%psi(m) = 0.0_wp
+      end do
+      return
+    end if
     p%F(1, :) = 1.0_wp
     p%F(2, :) = 0.0_wp
     p%F(3, :) = 0.0_wp
@@ -175,7 +222,8 @@ contains
     real(wp), intent(in) :: dt, gravity(2)
     logical, intent(in) :: apic
     integer(ik) :: ip, a, k, i0, j0, i, j, n1
-    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av
+    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av, vp
+    logical :: solid
     associate (mc => ic%mc)
       n1 = mc%nn(1)
       mc%um = 0.0_wp
@@ -186,11 +234,28 @@ contains
       mc%vo = 0.0_wp
       mc%fill = 0.0_wp
       where (mc%cell == CELL_FLUID) mc%cell = CELL_AIR   ! walls stay
+      if (ic%coupled) call clear_coupled()
       av = 1.0_wp/g%h**2
       do ip = 1, p%n
         mp = p%m(ip)
-        call scatter(ic%shu, ic%gu, 1, mc%um, mc%u, mc%uo)
-        call scatter(ic%shv, ic%gv, 2, mc%vm, mc%v, mc%vo)
+        vp = p%vol0(ip)
+        solid = .false.
+        if (ic%coupled) then
+          if (ic%rigid(p%mat(ip))) cycle   ! marked below, after the water
+          solid = ic%solid(p%mat(ip))
+          vp = p%vol(ip)
+          if (solid) then
+            call scatter_mv(ic%shu, ic%usm, ic%uvs)
+            call scatter_mv(ic%shv, ic%vsm, ic%vvs)
+          else
+            call scatter_v(ic%shu, ic%uvw)
+            call scatter_v(ic%shv, ic%vvw)
+          end if
+        end if
+        if (.not. solid) then
+          call scatter(ic%shu, ic%gu, 1, mc%um, mc%u, mc%uo)
+          call scatter(ic%shv, ic%gv, 2, mc%vm, mc%v, mc%vo)
+        end if
         ! cell of the particle, and its volume spread bilinearly over the cell centres (indices
         ! clamped to the physical cells: a wall mirrors the water beyond it)
         s = (p%x(:, ip) - g%gorig)/g%h
@@ -207,7 +272,8 @@ contains
         do j = 0, 1
           do i = 0, 1
             k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
-            mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*p%vol0(ip)*av
+            mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*vp*av
+            if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wx(i + 1)*wy(j + 1)*vp*av
           end do
         end do
       end do
@@ -216,11 +282,70 @@ contains
       do j = mc%lo(2), mc%hi(2)
         do i = mc%lo(1), mc%hi(1)
           k = i + (j - 1)*n1
-          if (mc%fill(k) > 0.5_wp) mc%cell(k) = CELL_FLUID
+          if (mc%fill(k) > 0.5_wp .and. mc%cell(k) /= CELL_SOLID) mc%cell(k) = CELL_FLUID
         end do
       end do
+      if (ic%coupled) call mark_rigid()
     end associate
   contains
+    subroutine clear_coupled()
+      !! Coupling fields to zero; the last step's rigid cells back to air.
+      n1 = ic%mc%nn(1)
+      do j = ic%mc%lo(2), ic%mc%hi(2)
+        do i = ic%mc%lo(1), ic%mc%hi(1)
+          k = i + (j - 1)*n1
+          if (ic%mc%cell(k) == CELL_SOLID) ic%mc%cell(k) = CELL_AIR
+          ic%mc%rvx(k) = 0.0_wp
+          ic%mc%rvy(k) = 0.0_wp
+        end do
+      end do
+      ic%usm = 0.0_wp
+      ic%vsm = 0.0_wp
+      ic%uvw = 0.0_wp
+      ic%vvw = 0.0_wp
+      ic%uvs = 0.0_wp
+      ic%vvs = 0.0_wp
+      ic%mc%ua = 1.0_wp
+      ic%mc%va = 1.0_wp
+      ic%fillw = 0.0_wp
+    end subroutine clear_coupled
+
+    subroutine mark_rigid()
+      !! Cells holding a rigid particle's centre bound the water with the body's velocity.
+      do ip = 1, p%n
+        if (.not. ic%rigid(p%mat(ip))) cycle
+        s = (p%x(:, ip) - g%gorig)/g%h
+        i = int(s(1)) + 1
+        j = int(s(2)) + 1
+        if (i < ic%mc%lo(1) .or. i > ic%mc%hi(1) .or. j < ic%mc%lo(2) .or. j > ic%mc%hi(2)) cycle
+        k = i + (j - 1)*n1
+        ic%mc%cell(k) = CELL_SOLID
+        ic%mc%rvx(k) = ic%rvel(1, p%mat(ip))
+        ic%mc%rvy(k) = ic%rvel(2, p%mat(ip))
+      end do
+    end subroutine mark_rigid
+
+    subroutine scatter_mv(sh, fm, fv)
+      !! Mass (fm) and volume (fv) of particle ip to a face lattice.
+      type(shape_t), intent(in) :: sh
+      real(wp), intent(inout) :: fm(:), fv(:)
+      do a = 1, shape_count(sh, ip)
+        call shape_slot(sh, ip, a, k, w, gxk, gyk)
+        fm(k) = fm(k) + w*mp
+        fv(k) = fv(k) + w*vp
+      end do
+    end subroutine scatter_mv
+
+    subroutine scatter_v(sh, fv)
+      !! Volume of particle ip to a face lattice.
+      type(shape_t), intent(in) :: sh
+      real(wp), intent(inout) :: fv(:)
+      do a = 1, shape_count(sh, ip)
+        call shape_slot(sh, ip, a, k, w, gxk, gyk)
+        fv(k) = fv(k) + w*vp
+      end do
+    end subroutine scatter_v
+
     subroutine scatter(sh, gl, c, fm, fq, fi)
       !! Velocity component c of particle ip to its face lattice gl: mass fm, momentum fq
       !! (APIC: with the affine part, c's row of the particle's L) and force impulse fi.
@@ -303,9 +428,13 @@ contains
     end subroutine lap
   end subroutine viscosity
 
-  subroutine incomp_step(ic, g, p, flip, gravity, dt, steps, diag, timers, smax, st)
+  subroutine incomp_step(ic, g, p, flip, gravity, dt, steps, diag, timers, smax, st, nm, nvx, nvy, dvx, dvy)
     !! One semi-implicit step of length dt. diag and timers follow cpdi_step's layout.
+    !! Coupled runs (cpdi_fsi) pass the solids' nodal mass nm and velocity after their explicit
+    !! forces (nvx, nvy) and receive the nodal velocity increments of the projection (dvx, dvy).
     type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in), optional :: nm(:), nvx(:), nvy(:)
+    real(wp), intent(inout), optional :: dvx(:), dvy(:)
     type(grid_t), intent(in) :: g
     type(particles_t), intent(inout) :: p
     real(wp), intent(in) :: flip, gravity(2), dt
@@ -327,6 +456,7 @@ contains
     call face_velocities(ic%mc, mtol)
     call toc(timers, 2, t0)
     if (ic%visc > 0.0_wp) call viscosity(ic%mc, dt*ic%visc/ic%rho, mtol)
+    if (ic%coupled) call solid_to_faces(ic, nm, nvx, nvy, mtol)
     diag(15) = 0.0_wp
     call volume_correction(ic, dt, diag, converged, timers, t0)
     if (converged) then
@@ -347,6 +477,7 @@ contains
       return
     end if
     call mac_project(ic%mc, dt, ic%rho)
+    if (ic%coupled) call faces_to_solid(ic, nm, mtol, dvx, dvy)
     where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
       ic%mc%uo = ic%mc%u - ic%mc%uo
     elsewhere
@@ -367,6 +498,104 @@ contains
     call toc(timers, 4, t0)
   end subroutine incomp_step
 
+  subroutine solid_to_faces(ic, nm, nvx, nvy, mtol)
+    !! The single continuum: on every face the solid reaches, its mass (us from the nodal
+    !! velocity nvx, nvy, weighted by the nodal mass nm of the face's two nodes) joins the
+    !! water's; the face velocity is the mixture's momentum over its mass and its coefficient
+    !! rho_w V / m (the projection's dt / rho_face). Water-only faces keep coefficient 1.
+    !! A face of solid only takes the mixture velocity before forces too (uo), so the water's
+    !! FLIP increment there is the projection's change alone.
+    type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in) :: nm(:), nvx(:), nvy(:), mtol
+    integer(ik) :: i, j, k, n1, kb
+    real(wp) :: mt, wn
+    n1 = ic%mc%nn(1)
+    associate (mc => ic%mc)
+      do j = 1, mc%nn(2) - 1
+        do i = 1, n1 - 1
+          k = i + (j - 1)*n1
+          ic%us(k) = 0.0_wp
+          ic%vs(k) = 0.0_wp
+          ic%umx(k) = mc%u(k)
+          ic%vmx(k) = mc%v(k)
+          if (ic%usm(k) > mtol) then   ! u face k: between nodes k and k + n1
+            kb = k + n1
+            wn = nm(k) + nm(kb)
+            if (wn > 0.0_wp) ic%us(k) = (nm(k)*nvx(k) + nm(kb)*nvx(kb))/wn
+            mt = mc%um(k) + ic%usm(k)
+            mc%u(k) = (mc%um(k)*mc%u(k) + ic%usm(k)*ic%us(k))/mt
+            if (.not. (mc%um(k) > mtol)) mc%uo(k) = mc%u(k)
+            mc%ua(k) = ic%rho*(ic%uvw(k) + ic%uvs(k))/mt
+            ic%umx(k) = mc%u(k)
+          end if
+          if (ic%vsm(k) > mtol) then   ! v face k: between nodes k and k + 1
+            kb = k + 1
+            wn = nm(k) + nm(kb)
+            if (wn > 0.0_wp) ic%vs(k) = (nm(k)*nvy(k) + nm(kb)*nvy(kb))/wn
+            mt = mc%vm(k) + ic%vsm(k)
+            mc%v(k) = (mc%vm(k)*mc%v(k) + ic%vsm(k)*ic%vs(k))/mt
+            if (.not. (mc%vm(k) > mtol)) mc%vo(k) = mc%v(k)
+            mc%va(k) = ic%rho*(ic%vvw(k) + ic%vvs(k))/mt
+            ic%vmx(k) = mc%v(k)
+          end if
+        end do
+      end do
+    end associate
+  end subroutine solid_to_faces
+
+  subroutine faces_to_solid(ic, nm, mtol, dvx, dvy)
+    !! After the projection: each solid face's velocity change (the shared face velocity minus
+    !! the solid's own) goes back to its two nodes, averaged over a node's faces by solid face
+    !! mass.
+    type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in) :: nm(:), mtol
+    real(wp), intent(inout) :: dvx(:), dvy(:)
+    integer(ik) :: i, j, k, n1, kb
+    real(wp) :: d, wm
+    n1 = ic%mc%nn(1)
+    dvx = 0.0_wp
+    dvy = 0.0_wp
+    ic%nwx = 0.0_wp
+    ic%nwy = 0.0_wp
+    associate (mc => ic%mc)
+      do j = 1, mc%nn(2) - 1
+        do i = 1, n1 - 1
+          k = i + (j - 1)*n1
+          if (ic%usm(k) > mtol) then
+            kb = k + n1
+            d = mc%u(k) - ic%us(k)
+            ic%us(k) = d   ! from here on: the solid's velocity change on the face
+            wm = ic%usm(k)
+            dvx(k) = dvx(k) + wm*d
+            dvx(kb) = dvx(kb) + wm*d
+            ic%nwx(k) = ic%nwx(k) + wm
+            ic%nwx(kb) = ic%nwx(kb) + wm
+          end if
+          if (ic%vsm(k) > mtol) then
+            kb = k + 1
+            d = mc%v(k) - ic%vs(k)
+            ic%vs(k) = d
+            wm = ic%vsm(k)
+            dvy(k) = dvy(k) + wm*d
+            dvy(kb) = dvy(kb) + wm*d
+            ic%nwy(k) = ic%nwy(k) + wm
+            ic%nwy(kb) = ic%nwy(kb) + wm
+          end if
+        end do
+      end do
+    end associate
+    where (ic%nwx > 0.0_wp .and. nm > 0.0_wp)
+      dvx = dvx/ic%nwx
+    elsewhere
+      dvx = 0.0_wp
+    end where
+    where (ic%nwy > 0.0_wp .and. nm > 0.0_wp)
+      dvy = dvy/ic%nwy
+    elsewhere
+      dvy = 0.0_wp
+    end where
+  end subroutine faces_to_solid
+
   subroutine volume_correction(ic, dt, diag, converged, timers, t0)
     !! The velocity field (uc, vc) whose divergence is beta (fill - 1) / dt in over-filled
     !! water cells and 0 elsewhere (a solve with the same operator and only that target). It
@@ -378,21 +607,35 @@ contains
     real(wp), intent(inout) :: diag(:), timers(:)
     logical, intent(out) :: converged
     integer(int64), intent(inout) :: t0
+    real(wp) :: dtc
     converged = .true.
     ic%mc%uc = 0.0_wp
     ic%mc%vc = 0.0_wp
     if (ic%beta == 0.0_wp) return
-    if (.not. any(ic%mc%fill > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    if (ic%coupled) then   ! the water's own over-filling only: a solid's volume is not packing
+      if (.not. any(ic%fillw > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    else
+      if (.not. any(ic%mc%fill > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
+    end if
     call swap(ic%mc%u, ic%mc%uc)   ! u, v: zero; uc, vc: the flow's face velocities
     call swap(ic%mc%v, ic%mc%vc)
-    call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
+    dtc = dt
+    if (ic%coupled) then
+      ! coupled runs step at the solid's acoustic limit, far below the water's own step: the
+      ! packing error is undone at the water's rate beta / (its own step), not beta per
+      ! (tiny) step, which moved water ~ beta (fill - 1) h every step and lifted it (cpdi_fsi)
+      dtc = max(dt, ic%dt_corr)
+      call mac_assemble(ic%mc, dtc, ic%rho, ic%beta, ic%fillw)
+    else
+      call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
+    end if
     call toc(timers, 3, t0)
     call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
     call toc(timers, 8, t0)
     diag(15) = real(ic%mc%iters, wp)
     diag(17) = diag(17) + real(ic%mc%iters, wp)
     if (converged) then
-      call mac_project(ic%mc, dt, ic%rho)
+      call mac_project(ic%mc, dtc, ic%rho)
       call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
       call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
     end if
@@ -436,6 +679,9 @@ contains
         wc = 0.0_wp
         nclamp = 0
         do ip = lo, hi
+          if (ic%coupled) then   ! the solids move with their nodes (cpdi_fsi)
+            if (ic%solid(p%mat(ip)) .or. ic%rigid(p%mat(ip))) cycle
+          end if
           mp = p%m(ip)
           xo = p%x(:, ip)
           call gather(ic%shu, ip, mc%u, mc%uc, mc%uo, vn(1), vc(1), dv(1), cu)

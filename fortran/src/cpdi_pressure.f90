@@ -50,6 +50,8 @@ module cpdi_pressure
     real(wp), allocatable :: p(:)            !! cell pressure [Pa]
     real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
     real(wp), allocatable :: b(:), adiag(:), ai(:), aj(:), pre(:), r(:), z(:), s(:), q(:)
+    real(wp), allocatable :: ua(:), va(:)    !! face coefficients rho_w / rho_face (1 on water faces)
+    real(wp), allocatable :: rvx(:), rvy(:)  !! velocity of a CELL_SOLID cell (0: wall; a rigid body's)
     integer(ik) :: nfluid = 0                !! water cells
     integer(ik) :: iters = 0                 !! CG iterations of the last solve
     real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
@@ -70,10 +72,10 @@ contains
     n = nn(1)*nn(2)
     if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
-                                        mc%s, mc%q)
+                                        mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy)
     allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
-              mc%z(n), mc%s(n), mc%q(n), stat=ierr)
+              mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the pressure grid; use a larger cell size')
       return
@@ -105,6 +107,10 @@ contains
     mc%z = 0.0_wp
     mc%s = 0.0_wp
     mc%q = 0.0_wp
+    mc%ua = 1.0_wp
+    mc%va = 1.0_wp
+    mc%rvx = 0.0_wp
+    mc%rvy = 0.0_wp
   end subroutine mac_alloc
 
   subroutine mac_mark_outside(mc, closed)
@@ -125,16 +131,19 @@ contains
   end subroutine mac_mark_outside
 
   subroutine mac_walls(mc)
-    !! Faces between a wall cell and any other cell get the wall's zero normal velocity
-    !! (before the pressure equation is assembled: its right-hand side sees them).
+    !! Faces between a wall cell and any other cell get the wall's normal velocity: zero for
+    !! the domain's walls, the body's for a rigid body's cells (rvx, rvy), before the pressure
+    !! equation is assembled: its right-hand side sees them.
     type(mac_t), intent(inout) :: mc
     integer(ik) :: i, j, k, n1
     n1 = mc%nn(1)
     do j = 2, mc%nn(2)
       do i = 2, n1
         k = i + (j - 1)*n1
-        if ((mc%cell(k - 1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) mc%u(k) = 0.0_wp
-        if ((mc%cell(k - n1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) mc%v(k) = 0.0_wp
+        if ((mc%cell(k - 1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) &
+          mc%u(k) = merge(mc%rvx(k - 1), mc%rvx(k), mc%cell(k - 1) == CELL_SOLID)
+        if ((mc%cell(k - n1) == CELL_SOLID) .neqv. (mc%cell(k) == CELL_SOLID)) &
+          mc%v(k) = merge(mc%rvy(k - n1), mc%rvy(k), mc%cell(k - n1) == CELL_SOLID)
       end do
     end do
   end subroutine mac_walls
@@ -152,13 +161,18 @@ contains
     end if
   end function surface_theta
 
-  subroutine mac_assemble(mc, dt, rho, beta)
+  subroutine mac_assemble(mc, dt, rho, beta, qfill)
     !! Matrix (5-point, ghost-fluid surface) and right-hand side of the pressure equation
     !! A p = (rho h^2 / dt) (q - div u) on the water cells, from the face velocities u, v.
+    !! Each face enters with its coefficient ua, va = rho / rho_face (1 on water faces; a
+    !! face shared with a solid has the mixture's density, cpdi_incompressible).
+    !! q = beta (f - 1) / dt where f > 1, f the cell fill, or qfill when given (coupled runs:
+    !! the water's own fill, so the correction never pushes water off a solid).
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho, beta
+    real(wp), intent(in), optional :: qfill(:)
     integer(ik) :: i, j, c, n1, nb(4), a
-    real(wp) :: scale, div, qv
+    real(wp) :: scale, div, qv, af(4)
     n1 = mc%nn(1)
     scale = rho*mc%h**2/dt
     mc%nfluid = 0
@@ -179,19 +193,24 @@ contains
         if (mc%cell(c) /= CELL_FLUID) cycle
         mc%nfluid = mc%nfluid + 1
         nb = [c - 1, c + 1, c - n1, c + n1]
+        af = [mc%ua(c), mc%ua(c + 1), mc%va(c), mc%va(c + n1)]
         do a = 1, 4
           select case (mc%cell(nb(a)))
           case (CELL_FLUID)
-            mc%adiag(c) = mc%adiag(c) + 1.0_wp
-            if (a == 2) mc%ai(c) = -1.0_wp
-            if (a == 4) mc%aj(c) = -1.0_wp
+            mc%adiag(c) = mc%adiag(c) + af(a)
+            if (a == 2) mc%ai(c) = -af(a)
+            if (a == 4) mc%aj(c) = -af(a)
           case (CELL_AIR)
-            mc%adiag(c) = mc%adiag(c) + 1.0_wp/surface_theta(mc%fill(c), mc%fill(nb(a)))
+            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc%fill(c), mc%fill(nb(a)))
           end select
         end do
         div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
         qv = 0.0_wp
-        if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
+        if (present(qfill)) then
+          if (qfill(c) > 1.0_wp) qv = beta*(qfill(c) - 1.0_wp)/dt
+        else
+          if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
+        end if
         mc%b(c) = scale*(qv - div)
       end do
     end do
@@ -354,37 +373,40 @@ contains
     do j = mc%lo(2) - 1, mc%hi(2) + 1
       do i = mc%lo(1), mc%hi(1) + 1
         k = i + (j - 1)*n1
-        call face(k - 1, k, mc%u(k), mc%uval(k))
+        call face(k - 1, k, mc%u(k), mc%uval(k), mc%ua(k), mc%rvx)
       end do
     end do
     do j = mc%lo(2), mc%hi(2) + 1
       do i = mc%lo(1) - 1, mc%hi(1) + 1
         k = i + (j - 1)*n1
-        call face(k - n1, k, mc%v(k), mc%vval(k))
+        call face(k - n1, k, mc%v(k), mc%vval(k), mc%va(k), mc%rvy)
       end do
     end do
   contains
-    subroutine face(cl, cr, w, val)
-      !! Face between cells cl (lower or left) and cr.
+    subroutine face(cl, cr, w, val, a, rv)
+      !! Face between cells cl (lower or left) and cr, coefficient a; rv: the solid cells' velocity.
       integer(ik), intent(in) :: cl, cr
       real(wp), intent(inout) :: w
       integer(ik), intent(inout) :: val
+      real(wp), intent(in) :: a, rv(:)
       integer(ik) :: tl, tr
+      real(wp) :: sa
       tl = mc%cell(cl)
       tr = mc%cell(cr)
+      sa = scale*a
       if (tl == CELL_SOLID .or. tr == CELL_SOLID) then
-        if (tl /= tr) then   ! a wall face: the wall's zero normal velocity
-          w = 0.0_wp
+        if (tl /= tr) then   ! a wall face: the wall's (or rigid body's) normal velocity
+          w = merge(rv(cl), rv(cr), tl == CELL_SOLID)
           val = 1
         end if
       else if (tl == CELL_FLUID .and. tr == CELL_FLUID) then
-        w = w - scale*(mc%p(cr) - mc%p(cl))
+        w = w - sa*(mc%p(cr) - mc%p(cl))
         val = 1
       else if (tl == CELL_FLUID) then
-        w = w + scale*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
+        w = w + sa*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
         val = 1
       else if (tr == CELL_FLUID) then
-        w = w - scale*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
+        w = w - sa*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
         val = 1
       end if
     end subroutine face

@@ -32,6 +32,7 @@ module cpdi_step
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
+  use cpdi_fsi, only: fsi_prepare, fsi_step
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX
   use cpdi_grid_update, only: node_range, grid_update
   use cpdi_transfer, only: p2g, g2p
@@ -124,7 +125,8 @@ contains
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     if (s%contact) then
-      call st%set(CPDI_ERR_INPUT, 'contact is not available with fluid = "incompressible"; '// &
+      call st%set(CPDI_ERR_INPUT, 'contact is not available with fluid = "incompressible" (solids couple '// &
+                  'to it as one continuum with a no-slip interface; slip interfaces are not built yet); '// &
                   'set [contact] enabled = false or use fluid = "weakly_compressible"')
       return
     end if
@@ -139,6 +141,7 @@ contains
     if (s%smax < 0.0_wp) s%smax = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
     s%visc_dt = huge(1.0_wp)
     if (s%inc%visc > 0.0_wp) s%visc_dt = 0.25_wp*s%inc%rho*s%g%h**2/s%inc%visc
+    if (s%inc%coupled) call fsi_prepare(s, st)   ! solids coupled to the water (cpdi_fsi)
   end subroutine prepare_incompressible
 
   subroutine prepare_fields(s, st)
@@ -219,7 +222,11 @@ contains
     end if
     proj = s%opt%projection /= PROJ_NONE
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
-      call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
+      if (s%inc%coupled) then
+        call fsi_step(s, dt, st)
+      else
+        call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
+      end if
       if (.not. st%ok()) return
       s%diag(11) = s%smax
       s%dt_last = dt

@@ -1,0 +1,268 @@
+!> Solids coupled two-way to the incompressible water: the step of a coupled run.
+module cpdi_fsi
+  !! Solids (Hencky, neo-Hookean: explicit, on the nodal grid) and rigid bodies with the
+  !! incompressible water (on the MAC faces) as one continuum (docs/fsi_incompressible.md):
+  !!
+  !! 1. weights of every particle on the nodes (and, in incomp_step, on the face lattices);
+  !! 2. the solids' explicit nodal step up to the velocity after forces: P2G of the solid
+  !!    particles (mass, momentum, stress divergence, gravity), v* = v + dt f / m, rigid
+  !!    nodes and walls;
+  !! 3. incomp_step: the solid's mass and nodal v* join the water's on the faces, the
+  !!    projection runs over the cells of water and solid with the mixture's face densities
+  !!    (the pressure gradient acts on the solid's faces: buoyancy), rigid bodies' cells bound
+  !!    the water with their velocity; the solid's face velocity changes return to the nodes;
+  !! 4. the solid particles from their nodes (FLIP/PIC blend, positions, USL velocity gradient),
+  !!    F, volume, CPDI domains and stress; rigid particles move with their prescribed velocity.
+  !!
+  !! Serial, and nothing is allocated per step. Water particles never touch the nodes.
+  use, intrinsic :: iso_fortran_env, only: int64
+  use cpdi_kinds, only: wp, ik
+  use cpdi_status, only: status_t, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_NAN, CPDI_ERR_JACOBIAN
+  use cpdi_grid, only: grid_apply_walls, hold_on_walls, WALL_OPEN
+  use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
+  use cpdi_materials, only: material_stresses
+  use cpdi_kinematics, only: det2, map_domains
+  use cpdi_incompressible, only: incomp_step
+  use cpdi_sim, only: sim_t
+  use cpdi_grid_update, only: impose_rigid
+  implicit none
+  private
+
+  public :: fsi_prepare, fsi_step
+
+contains
+
+  subroutine fsi_prepare(s, st)
+    !! Nodal weights storage, the solids' stress and the signal speed of the current state.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    logical :: realloc
+    real(wp) :: cs
+    realloc = .not. allocated(s%sh%idx)
+    if (.not. realloc) realloc = s%sh%kind /= s%opt%shape .or. size(s%sh%w, 2) /= s%p%n
+    if (realloc) then
+      call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
+      if (.not. st%ok()) return
+    end if
+    s%mtol = 1.0e-12_wp*minval(s%p%m)
+    s%inc%smax_w = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
+    call solid_stress(s, cs, st)
+    if (.not. st%ok()) return
+    s%smax = max(s%smax, cs)
+  end subroutine fsi_prepare
+
+  subroutine fsi_step(s, dt, st)
+    !! One coupled step of length dt.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    type(status_t), intent(inout) :: st
+    integer(ik) :: bad, fail
+    real(wp) :: cs
+    character(len=300) :: buf
+
+    call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+    if (.not. st%ok()) return
+    if (bad /= 0) then
+      if (fail == SHAPE_FAIL_INVERTED) then
+        write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
+          ' is inverted (r1 x r2 <= 0); reduce cfl or refine the grid'
+        call st%set(CPDI_ERR_DOMAIN, trim(buf))
+      else
+        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': particle ', bad, ' at (', s%p%x(:, bad), &
+          ') has left the grid; enlarge [grid] size or close the wall'
+        call st%set(CPDI_ERR_OUTSIDE, trim(buf))
+      end if
+      return
+    end if
+    call solid_p2g(s, dt)
+    s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
+    call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st, &
+                     s%g%m(:, 1), s%g%vx(:, 1), s%g%vy(:, 1), s%g%fx(:, 1), s%g%fy(:, 1))
+    if (.not. st%ok()) return
+    s%inc%smax_w = s%smax   ! the water's signal speed (incomp_step); the solids' joins it below
+    ! the solid particles gather the projection's change of their face velocities with the face
+    ! weights their mass went to the faces with (momentum-conserving); the force of the water
+    ! on the solids is that momentum change over dt (solid_g2p)
+    call solid_g2p(s, dt, st)
+    if (.not. st%ok()) return
+    s%dt_last = dt
+    call solid_stress(s, cs, st)
+    if (.not. st%ok()) return
+    s%smax = max(s%smax, cs)
+  end subroutine fsi_step
+
+  subroutine solid_p2g(s, dt)
+    !! Nodal mass, velocity at t^n (px, py) and after the solids' forces (vx, vy): solid and
+    !! rigid particles only; rigid nodes and walls imposed on both.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik) :: ip, a, k
+    real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
+    logical :: rig
+    associate (g => s%g, p => s%p)
+      g%m = 0.0_wp
+      g%px = 0.0_wp
+      g%py = 0.0_wp
+      g%fx = 0.0_wp
+      g%fy = 0.0_wp
+      if (s%any_rigid) then
+        g%mr = 0.0_wp
+        g%prx = 0.0_wp
+        g%pry = 0.0_wp
+      end if
+      do ip = 1, p%n
+        if (s%fluid(p%mat(ip))) cycle
+        mp = p%m(ip)
+        vol = p%vol(ip)
+        sig = p%sig(:, ip)
+        b = mp*(s%opt%gravity + p%bf(:, ip))
+        rig = s%rigid(p%mat(ip))
+        do a = 1, shape_count(s%sh, ip)
+          call shape_slot(s%sh, ip, a, k, wk, gxk, gyk)
+          g%m(k, 1) = g%m(k, 1) + wk*mp
+          g%px(k, 1) = g%px(k, 1) + wk*mp*p%v(1, ip)
+          g%py(k, 1) = g%py(k, 1) + wk*mp*p%v(2, ip)
+          g%fx(k, 1) = g%fx(k, 1) - vol*(sig(1)*gxk + sig(3)*gyk) + wk*b(1)
+          g%fy(k, 1) = g%fy(k, 1) - vol*(sig(3)*gxk + sig(2)*gyk) + wk*b(2)
+          if (rig) then
+            g%mr(k, 1) = g%mr(k, 1) + wk*mp
+            g%prx(k, 1) = g%prx(k, 1) + wk*mp*p%v(1, ip)
+            g%pry(k, 1) = g%pry(k, 1) + wk*mp*p%v(2, ip)
+          end if
+        end do
+      end do
+      where (g%m(:, 1) > s%mtol)
+        g%px(:, 1) = g%px(:, 1)/g%m(:, 1)
+        g%py(:, 1) = g%py(:, 1)/g%m(:, 1)
+        g%vx(:, 1) = g%px(:, 1) + dt*g%fx(:, 1)/g%m(:, 1)
+        g%vy(:, 1) = g%py(:, 1) + dt*g%fy(:, 1)/g%m(:, 1)
+      elsewhere
+        g%m(:, 1) = 0.0_wp
+        g%px(:, 1) = 0.0_wp
+        g%py(:, 1) = 0.0_wp
+        g%vx(:, 1) = 0.0_wp
+        g%vy(:, 1) = 0.0_wp
+      end where
+      if (s%any_rigid) then
+        call impose_rigid(g, g%px, g%py)
+        call impose_rigid(g, g%vx, g%vy)
+      end if
+      call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
+      call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+    end associate
+  end subroutine solid_p2g
+
+  subroutine solid_g2p(s, dt, st)
+    !! Solid particles from their nodes: FLIP/PIC blend, positions, velocity gradient (USL),
+    !! F, volume and CPDI domains; rigid particles with their prescribed velocity. Adds the
+    !! solids' kinetic energy, momentum and work of gravity to the water's (diag 4, 6-8).
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip, a, k, nclamp
+    real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), dp(2), fs(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
+    logical :: closed(4)
+    character(len=300) :: buf
+    fl = s%opt%flip
+    xmin = s%g%origin
+    xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
+    closed = s%g%walls /= WALL_OPEN
+    ke = 0.0_wp
+    mom = 0.0_wp
+    wg = 0.0_wp
+    nclamp = 0
+    fs = 0.0_wp
+    associate (g => s%g, p => s%p)
+      do ip = 1, p%n
+        if (s%fluid(p%mat(ip))) cycle
+        xo = p%x(:, ip)
+        if (s%rigid(p%mat(ip))) then
+          p%v(:, ip) = s%mats(p%mat(ip))%vel
+          p%x(:, ip) = xo + dt*p%v(:, ip)
+          p%L(:, ip) = 0.0_wp
+        else
+          vn = 0.0_wp
+          dv = 0.0_wp
+          l = 0.0_wp   ! velocity gradient [L11, L21, L12, L22] from the new nodal velocity (USL)
+          do a = 1, shape_count(s%sh, ip)
+            call shape_slot(s%sh, ip, a, k, wk, gxk, gyk)
+            vn = vn + wk*[g%vx(k, 1), g%vy(k, 1)]
+            dv = dv + wk*[g%vx(k, 1) - g%px(k, 1), g%vy(k, 1) - g%py(k, 1)]
+            ! the velocity gradient from the nodes alone (the stress divergence's operator): v*
+            ! plus the projection's change returned to the nodes (fx, fy: incomp_step's dvx, dvy)
+            l = l + [(g%vx(k, 1) + g%fx(k, 1))*gxk, (g%vy(k, 1) + g%fy(k, 1))*gxk, &
+                     (g%vx(k, 1) + g%fx(k, 1))*gyk, (g%vy(k, 1) + g%fy(k, 1))*gyk]
+          end do
+          dp = 0.0_wp   ! the projection's change, from the faces
+          do a = 1, shape_count(s%inc%shu, ip)
+            call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
+            dp(1) = dp(1) + wk*s%inc%us(k)
+          end do
+          do a = 1, shape_count(s%inc%shv, ip)
+            call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
+            dp(2) = dp(2) + wk*s%inc%vs(k)
+          end do
+          vn = vn + dp
+          dv = dv + dp
+          fs = fs + p%m(ip)*dp/dt
+          p%v(:, ip) = fl*(p%v(:, ip) + dv) + (1.0_wp - fl)*vn
+          p%x(:, ip) = xo + dt*vn
+          call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
+          p%L(:, ip) = l
+          t = [1.0_wp + dt*p%L(1, ip), dt*p%L(2, ip), dt*p%L(3, ip), 1.0_wp + dt*p%L(4, ip)]
+          f = p%F(:, ip)
+          p%F(:, ip) = [t(1)*f(1) + t(3)*f(2), t(2)*f(1) + t(4)*f(2), t(1)*f(3) + t(3)*f(4), t(2)*f(3) + t(4)*f(4)]
+          j = det2(p%F(:, ip))
+          if (.not. (j > 0.0_wp)) then
+            write (buf, '(a,i0,a,i0,a,2es12.4,a,es11.3,a)') 'step ', s%steps + 1, ': solid particle ', ip, ' at (', &
+              p%x(:, ip), ') has det F = ', j, ' <= 0 (material inverted); reduce cfl or refine the grid'
+            call st%set(CPDI_ERR_JACOBIAN, trim(buf))
+            return
+          end if
+          p%vol(ip) = j*p%vol0(ip)
+          p%jbar(ip) = j
+          if (s%opt%shape == SHAPE_CPDI) call map_domains(ip, ip, p%F, p%r0, p%r)
+        end if
+        ke = ke + 0.5_wp*p%m(ip)*(p%v(1, ip)**2 + p%v(2, ip)**2)
+        mom = mom + p%m(ip)*p%v(:, ip)
+        wg = wg + p%m(ip)*dot_product(s%opt%gravity, p%x(:, ip) - xo)
+      end do
+    end associate
+    s%inc%fsolid = fs
+    s%diag(4) = s%diag(4) + ke
+    s%diag(6) = s%diag(6) + mom(1)
+    s%diag(7) = s%diag(7) + mom(2)
+    s%diag(8) = s%diag(8) + wg
+    s%diag(12) = s%diag(12) + real(nclamp, wp)
+  end subroutine solid_g2p
+
+  subroutine solid_stress(s, cs, st)
+    !! Stress and strain energy (diag 5) of the solid particles; cs: their largest signal
+    !! speed c + |v| (the explicit solid's step limit).
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(out) :: cs
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip
+    real(wp) :: se, c
+    character(len=300) :: buf
+    cs = 0.0_wp
+    se = 0.0_wp
+    associate (p => s%p)
+      do ip = 1, p%n
+        if (s%fluid(p%mat(ip)) .or. s%rigid(p%mat(ip))) cycle
+        call material_stresses(s%mats, s%opt%kinematics, ip, ip, p%mat, p%F, p%L, p%jbar, p%sig, p%psi)
+        p%psi(ip) = p%psi(ip)*p%vol0(ip)
+        se = se + p%psi(ip)
+        c = sqrt(s%mats(p%mat(ip))%pmod*p%vol(ip)/p%m(ip)) + norm2(p%v(:, ip))
+        if (.not. (abs(p%sig(1, ip)) + abs(p%sig(2, ip)) + abs(p%sig(3, ip)) + c < huge(1.0_wp))) then
+          write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity of solid particle ', &
+            ip, '; the run became unstable (reduce cfl, check materials)'
+          call st%set(CPDI_ERR_NAN, trim(buf))
+          return
+        end if
+        cs = max(cs, c)
+      end do
+    end associate
+    s%diag(5) = se
+  end subroutine solid_stress
+end module cpdi_fsi
