@@ -109,7 +109,7 @@ def cmd_mutate(args) -> int:
     from harness.mutation import main as mutation
 
     return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
-                         resume=args.resume, only=args.only)
+                         resume=args.resume, only=args.only, report_only=args.report_only)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -154,6 +154,7 @@ def parser() -> argparse.ArgumentParser:
     mu.add_argument("--fast-only", action="store_true", help="no full make test for the fast tier's survivors")
     mu.add_argument("--resume", metavar="DIR", help="continue an interrupted run in its report directory")
     mu.add_argument("--only", nargs="+", metavar="FILE", help="mutate only these files (fortran/src/x.f90)")
+    mu.add_argument("--report-only", action="store_true", help="with --resume: summarise the journal, run nothing")
     mu.set_defaults(func=cmd_mutate)
     return p
 

@@ -106,15 +106,21 @@ class Worker:
         return "fail", m.group(1) if m else f"pytest exit {code}", t1 + t2
 
 
-def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
-            full_timeout: float, full: bool, progress) -> list[dict]:
-    """Test every mutant not yet in the journal; returns all journal rows (old and new)."""
+def journal_rows(journal: Path, mutants: list[Mutant]) -> list[dict]:
+    """The journal's rows of these mutants, in the mutants' order."""
     done = {}
     if journal.is_file():
         for line in journal.read_text().splitlines():
             if line.strip():
                 row = json.loads(line)
                 done[row["id"]] = row
+    return [done[m.id] for m in mutants if m.id in done]
+
+
+def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
+            full_timeout: float, full: bool, progress) -> list[dict]:
+    """Test every mutant not yet in the journal; returns all journal rows (old and new)."""
+    done = {r["id"]: r for r in journal_rows(journal, mutants)}
     todo = [m for m in mutants if m.id not in done]
     if not todo:
         return [done[m.id] for m in mutants if m.id in done]

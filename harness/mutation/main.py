@@ -14,7 +14,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool = True, resume: str | None = None,
-         fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None) -> int:
+         fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None,
+         report_only: bool = False) -> int:
     rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "fortran", "tests"], cwd=REPO, capture_output=True,
@@ -32,8 +33,12 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     out = Path(resume) if resume else REPO / "reports" / "mutation" / f"{meta['date']}-{rev[:12]}"
     out.mkdir(parents=True, exist_ok=True)
     print(f"mutate: {meta['sampling']}; report in {out}", file=sys.stderr)
-    rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs or len(os.sched_getaffinity(0)),
-                           fast_timeout, full_timeout, full, execute.say)
+    if report_only:  # summarise what the journal holds so far (an interrupted run), run nothing
+        rows = execute.journal_rows(out / "journal.jsonl", chosen)
+        meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
+    else:
+        rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs or len(os.sched_getaffinity(0)),
+                               fast_timeout, full_timeout, full, execute.say)
     sc = summary.write(out, rows, meta)["overall"]
     print(f"mutate: kill rate {100 * sc['kill_rate']:.1f} % of {sc['counted']} counted mutants "
           f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "
