@@ -13,9 +13,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from harness import paths
 from harness.cases import CaseError
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 def _err(msg: str) -> None:
@@ -34,7 +33,7 @@ def cmd_run(args) -> int:
     if args.out:
         out = Path(args.out)
     else:
-        out = locate(args.restart).parent if args.restart else REPO / "runs" / case.name
+        out = locate(args.restart).parent if args.restart else paths.work_root() / "runs" / case.name
     try:
         with runner.StopOnSignal() as stop:
             res = runner.run(case, out, progress=not args.no_progress, checkpoint_every=every,
