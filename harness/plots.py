@@ -76,7 +76,7 @@ def particle_panels(path: Path, frames: list[tuple[str, np.ndarray, np.ndarray]]
         ax.set_ylim(*ylim)
         ax.set_aspect("equal")
         ax.set_title(label, fontsize=9)
-    fig.colorbar(sc, ax=axes[0].tolist(), label=clabel + " (1-99 % range)", shrink=0.85)
+    fig.colorbar(sc, ax=axes[0].tolist(), label=clabel + " (1-99 % range)", shrink=0.85, extend="both")
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=110)
