@@ -169,17 +169,22 @@ def run(ctx: CheckContext) -> CheckResult:
     return res
 
 
+def front_curves(gated: dict, inc: dict) -> dict:
+    """The surge-front curves of the gated and the incompressible run, each unshifted and shifted.
+    The best-fit shift dT compares the simulated front at T with the experiment at T + dT
+    (problems/dam_break.front_metrics), so a shifted curve is drawn at T + dT, and its legend says so."""
+    d, di = db.dimensionless(gated["series"]), db.dimensionless(inc["series"])
+    sg, si = gated["front_time_shift"], inc["front_time_shift"]
+    return {"CPDI + projection (gated), unshifted": (d["T"], d["Z"]),
+            f"CPDI + projection, drawn shifted by dT = {sg:+.2f}": (d["T"] + sg, d["Z"]),
+            "incompressible, unshifted": (di["T"], di["Z"]),
+            f"incompressible, drawn shifted by dT = {si:+.2f}": (di["T"] + si, di["Z"])}
+
+
 def _figures(ctx, res, gated, off, table_jobs, small, inc):
     d = db.dimensionless(gated["series"])
     di = db.dimensionless(inc["series"])
-    # The best-fit shift dT compares the simulated front at T with the experiment at T + dT
-    # (problems/dam_break.front_metrics), so a shifted curve is drawn at T + dT, and its legend says so;
-    # the unshifted curve is drawn too.
-    sg, si = gated["front_time_shift"], inc["front_time_shift"]
-    series = {"CPDI + projection (gated), unshifted": (d["T"], d["Z"]),
-              f"CPDI + projection, drawn shifted by dT = {sg:+.2f}": (d["T"] + sg, d["Z"]),
-              "incompressible, unshifted": (di["T"], di["Z"]),
-              f"incompressible, drawn shifted by dT = {si:+.2f}": (di["T"] + si, di["Z"])}
+    series = front_curves(gated, inc)
     hseries = {"CPDI + projection": (d["tau"], d["H"]), "incompressible": (di["tau"], di["H"])}
     if not isinstance(off, Exception):
         do = db.dimensionless(off["series"])
