@@ -198,7 +198,8 @@ def _figures(ctx, res, gated, off, table_jobs, small, inc):
                       points={"Martin & Moyce (1952), Table 2": (db.FRONT["T"], db.FRONT["Z"])},
                       xlabel="T = t sqrt(2g/L)", ylabel="Z = x_front / L", title="Surge front",
                       annotate=f"gated: RMS dZ = {res.metrics['front_rms_dz']:.3f}, after shift "
-                               f"{res.metrics['front_rms_dz_shifted']:.3f}")
+                               f"{res.metrics['front_rms_dz_shifted']:.3f}",
+                      legend_loc="below")  # six curves: a legend inside would hide some, or the annotation
     plots.time_series(ctx.fig_dir / "dam_break_height.png", None, hseries,
                       points={"Martin & Moyce (1952), Table 6": (db.HEIGHT["tau"], db.HEIGHT["H"])},
                       xlabel="tau = t sqrt(g/L)", ylabel="H = eta / 2L", title="Residual column height",
