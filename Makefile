@@ -8,7 +8,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 BUILD  := build
 DEBUG_BUILD := build-debug
-EXT_SRC := $(wildcard fortran/src/*.f90) fortran/cpdi.pyf fortran/meson.build fortran/meson.options \
+EXT_SRC := $(wildcard fortran/src/*.f90) fortran/cpdi.pyf meson.build fortran/meson.build meson.options \
            fortran/fflags.txt.in $(wildcard fortran/tests/*.f90)
 EXT_STAMP := harness/.ext-built
 APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
@@ -60,11 +60,14 @@ bootstrap: venv
 
 # ---------------------------------------------------------------- build
 $(EXT_STAMP): $(VENV)/.installed $(EXT_SRC)
-	@test -f $(BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(BUILD) fortran --python.install-env=auto -Dpython.bytecompile=-1 >/dev/null
+	@# the same meson project as `pip install .` (meson-python); a build/ configured from fortran/ (before the
+	@# top-level meson.build) has no build/fortran/ and is set up again
+	@test -d $(BUILD)/fortran || rm -rf $(BUILD)
+	@test -f $(BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(BUILD) . --python.install-env=auto -Dpython.bytecompile=-1 >/dev/null
 	@echo "build: compiling the Fortran core and the f2py extension (log: $(BUILD)/compile.log)"
 	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(BUILD) > $(BUILD)/compile.log 2>&1 || \
 	  { cat $(BUILD)/compile.log; echo "error: the Fortran build failed; the compiler output is above"; exit 1; }
-	@rm -f harness/_cpdi*.so && cp $(BUILD)/_cpdi*.so harness/
+	@rm -f harness/_cpdi*.so && cp $(BUILD)/fortran/_cpdi*.so harness/
 	@touch $@
 
 build: $(EXT_STAMP)
@@ -100,11 +103,12 @@ mutate-harness: build
 	@$(PY) -c "from harness.mutation import python_target as p; raise SystemExit(p.main())"
 
 memcheck: venv
-	@test -f $(DEBUG_BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(DEBUG_BUILD) fortran \
+	@test -d $(DEBUG_BUILD)/fortran || rm -rf $(DEBUG_BUILD)
+	@test -f $(DEBUG_BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(DEBUG_BUILD) . \
 	  -Dfflags_profile=debug -Db_sanitize=address -Dbuildtype=debug >/dev/null
 	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(DEBUG_BUILD) cpdi_memcheck > $(DEBUG_BUILD)/compile.log 2>&1 || \
 	  { cat $(DEBUG_BUILD)/compile.log; exit 1; }
-	@ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 $(DEBUG_BUILD)/cpdi_memcheck
+	@ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 $(DEBUG_BUILD)/fortran/cpdi_memcheck
 
 lint: venv
 	@$(VENV)/bin/ruff check harness tests

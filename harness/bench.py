@@ -405,7 +405,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         bound = f"<= {g['max']}" if "max" in g else f">= {g['min']}"
         print(f"gate {k}: {g['value']:.3f} ({bound}) {'PASS' if g['pass'] else 'FAIL'}")
     data = {"cases": rows, "summary": summary(rows), "repeats": REPEATS, "projection": PROJECTION,
-            "provenance": provenance.collect(REPO, REPO / "build"), "quick": quick,
+            "provenance": provenance.collect(REPO, REPO / "build" / "fortran"), "quick": quick,
             "machine": {"start": machine_start, "end": _machine()}, "loaded": loaded, "scaling": scal,
             "base": based, "gates": gates, "water_models": water}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")

@@ -1,4 +1,4 @@
-"""Command line: ``python -m harness {run,verify,report,bench}``.
+"""Command line: ``cpdi`` (installed by pip) or ``python -m harness``: run, verify, report, sweep, gate, bench, mutate.
 
 Errors print one line naming the problem and the fix, and exit non-zero:
 1 = a run or check failed, 2 = bad input (case file, arguments, checkpoint), 130 = interrupted
@@ -13,9 +13,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from harness import paths
 from harness.cases import CaseError
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 def _err(msg: str) -> None:
@@ -34,7 +33,7 @@ def cmd_run(args) -> int:
     if args.out:
         out = Path(args.out)
     else:
-        out = locate(args.restart).parent if args.restart else REPO / "runs" / case.name
+        out = locate(args.restart).parent if args.restart else paths.work_root() / "runs" / case.name
     try:
         with runner.StopOnSignal() as stop:
             res = runner.run(case, out, progress=not args.no_progress, checkpoint_every=every,
@@ -99,6 +98,16 @@ def cmd_gate(args) -> int:
     return 1 if bad else 0
 
 
+def cmd_sweep(args) -> int:
+    from harness import sweep
+
+    if not Path(args.case).is_file():
+        _err(f"case file {args.case} does not exist")
+        return 2
+    out = Path(args.out) if args.out else paths.work_root() / "runs" / "sweep" / Path(args.case).stem
+    return sweep.main(args.case, args.set, out, metric=args.metric, progress=not args.no_progress)
+
+
 def cmd_bench(args) -> int:
     from harness import bench
 
@@ -113,7 +122,8 @@ def cmd_mutate(args) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m harness", description="cpdi-verify harness")
+    prog = "cpdi" if Path(sys.argv[0]).name == "cpdi" else "python -m harness"
+    p = argparse.ArgumentParser(prog=prog, description="cpdi-verify harness")
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run one case")
     r.add_argument("case", help="case file (TOML)")
@@ -142,6 +152,18 @@ def parser() -> argparse.ArgumentParser:
     gt = sub.add_parser("gate", help="compare a metrics.json with the gold baselines")
     gt.add_argument("metrics", help="metrics.json of a verify run")
     gt.set_defaults(func=cmd_gate)
+    sw = sub.add_parser("sweep", help="parameter study: run the cartesian product of case overrides",
+                        description="Run CASE once per combination of the --set values (serially) and write one "
+                                    "table (sweep.csv, sweep.md) and one plot of --metric (sweep.png) in OUT.")
+    sw.add_argument("case", help="case file (TOML)")
+    sw.add_argument("--set", action="append", default=[], required=True, metavar="SECTION.KEY=V1,V2,...",
+                    help="values of one case key, comma-separated, e.g. --set solver.cfl=0.3,0.5 (repeatable; "
+                         "the runs are the cartesian product)")
+    sw.add_argument("--metric", default="wall_s",
+                    help="the table column to plot (default wall_s; e.g. steps, final.front_x)")
+    sw.add_argument("--out", help="output directory (default runs/sweep/<case file stem>)")
+    sw.add_argument("--no-progress", action="store_true", help="no progress bars")
+    sw.set_defaults(func=cmd_sweep)
     b = sub.add_parser("bench", help="performance benchmark")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "

@@ -16,7 +16,9 @@ import re
 from pathlib import Path
 from typing import Any
 
-GOLD = Path(__file__).resolve().parent.parent / "reference" / "gold" / "metrics.json"
+from harness import paths
+
+GOLD = paths.REFERENCE / "gold" / "metrics.json"
 
 # (metric pattern, abs_tol, rel_tol, better, reason); first match wins; better = lower|higher|either
 TOLERANCES: list[tuple[str, float, float, str, str]] = [

@@ -14,13 +14,16 @@ import numpy as np  # noqa: E402
 COLORS = {"mpm": "tab:orange", "gimp": "tab:green", "cpdi": "tab:blue"}
 
 
-def _finish(fig, ax, path: Path, title: str, annotate: str | None) -> None:
+def _finish(fig, ax, path: Path, title: str, annotate: str | None, legend_loc: str = "best") -> None:
     ax.set_title(title)
     if annotate:
         ax.text(0.98, 0.03, annotate, transform=ax.transAxes, fontsize=9, ha="right", va="bottom",
                 bbox=dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9))
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    if legend_loc == "below":  # many curves: under the axes, where it hides none of them
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
+    else:
+        ax.legend(fontsize=8, loc=legend_loc)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -43,8 +46,9 @@ def loglog_convergence(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarra
 
 
 def time_series(path: Path, t, series: dict[str, np.ndarray], exact=None, points=None, xlabel="t", ylabel="",
-                title="", annotate: str | None = None, exact_label: str = "analytic", logy: bool = False) -> None:
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+                title="", annotate: str | None = None, exact_label: str = "analytic", logy: bool = False,
+                legend_loc: str = "best") -> None:
+    fig, ax = plt.subplots(figsize=(6.5, 5.2 if legend_loc == "below" else 4))
     if logy:
         ax.set_yscale("log")
     for name, y in series.items():  # y is an array over t, or an (x, y) pair of its own
@@ -56,7 +60,7 @@ def time_series(path: Path, t, series: dict[str, np.ndarray], exact=None, points
             ax.plot(px, py, "o", mfc="none", label=name)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    _finish(fig, ax, path, title, annotate)
+    _finish(fig, ax, path, title, annotate, legend_loc)
 
 
 def particle_panels(path: Path, frames: list[tuple[str, np.ndarray, np.ndarray]], xlim, ylim, clabel: str,
@@ -76,7 +80,7 @@ def particle_panels(path: Path, frames: list[tuple[str, np.ndarray, np.ndarray]]
         ax.set_ylim(*ylim)
         ax.set_aspect("equal")
         ax.set_title(label, fontsize=9)
-    fig.colorbar(sc, ax=axes[0].tolist(), label=clabel + " (1-99 % range)", shrink=0.85)
+    fig.colorbar(sc, ax=axes[0].tolist(), label=clabel + " (1-99 % range)", shrink=0.85, extend="both")
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=110)

@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-DATA = Path(__file__).resolve().parent.parent / "reference" / "data"
+from harness import paths
+
+DATA = paths.REFERENCE / "data"
 
 
 def header(path: Path) -> list[str]:

@@ -14,10 +14,9 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from harness import gate, provenance, report
+from harness import gate, paths, provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
-REPO = Path(__file__).resolve().parent.parent
 CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front",
           "elastic_obstacle", "rigid_obstacle", "resting_tank", "dam_break_pressure"]
 # Runnable with --only but not yet part of the gated set (see the issue notes for why).
@@ -41,7 +40,7 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
     with _check_bar(len(names), progress) as bar:
         for name in names:
             mod = importlib.import_module(f"harness.checks.{name}")
-            ctx = CheckContext(out_dir=out_dir, quick=quick, runs_dir=REPO / "runs" / "verify" / name,
+            ctx = CheckContext(out_dir=out_dir, quick=quick, runs_dir=paths.work_root() / "runs" / "verify" / name,
                                progress=progress)
             ctx.runs_dir.mkdir(parents=True, exist_ok=True)
             bar.set_postfix_str(f"running {name}")
@@ -63,7 +62,7 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
 
 
 def _point_latest(out_dir: Path) -> None:
-    latest = REPO / "reports" / "latest"
+    latest = paths.work_root() / "reports" / "latest"
     try:
         if latest.is_symlink() or latest.exists():
             latest.unlink()
@@ -75,12 +74,12 @@ def _point_latest(out_dir: Path) -> None:
 def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tuple[dict, list[dict]]:
     """Run the checks, compare with gold, write the report; returns (metrics, gate rows)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    prov = provenance.collect(REPO, REPO / "build")
+    prov = provenance.collect(paths.SOURCE_ROOT, paths.build_dir())
     results = run_checks(names, out_dir, quick, progress)
     draft = report.build_metrics(results, prov, quick)
     rows = gate.compare(draft, gate.load_gold(), "quick" if quick else "full")
     metrics = report.write_report(out_dir, results, prov, quick, gate_summary=rows or None,
-                                  bench_dir=REPO / "reports" / "bench")
+                                  bench_dir=paths.work_root() / "reports" / "bench")
     width = max(len(r.name) for r in results)
     print("\n" + "check".ljust(width) + "  result  verdict")
     for r in results:
@@ -116,7 +115,7 @@ def main(quick: bool = False, only: list[str] | None = None, out: Path | None = 
             return 2
         tiers = {}
         for tier_quick in (False, True):
-            out_dir = REPO / "reports" / _stamp(tier_quick)
+            out_dir = paths.work_root() / "reports" / _stamp(tier_quick)
             metrics, _ = verify(tier_quick, CHECKS, out_dir, progress)
             failed = [n for n, c in metrics["checks"].items() if not c["passed"]]
             if failed:
@@ -125,9 +124,9 @@ def main(quick: bool = False, only: list[str] | None = None, out: Path | None = 
                 return 1
             tiers["quick" if tier_quick else "full"] = metrics
         gate.write_gold(tiers, metrics["provenance"])
-        print(f"wrote {gate.GOLD.relative_to(REPO)}: review the diff and commit it")
+        print(f"wrote {gate.GOLD}: review the diff and commit it")
         return 0
-    out_dir = out or REPO / "reports" / _stamp(quick)
+    out_dir = out or paths.work_root() / "reports" / _stamp(quick)
     metrics, _ = verify(quick, names, out_dir, progress)
     if out is None:
         _point_latest(out_dir)

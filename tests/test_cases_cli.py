@@ -168,7 +168,7 @@ def test_verify_shows_per_check_progress_and_wall_times(tmp_path, monkeypatch, c
         return mod
 
     monkeypatch.setattr(verify.importlib, "import_module", lambda path: fake(path.rsplit(".", 1)[1]))
-    monkeypatch.setattr(verify, "REPO", tmp_path)
+    monkeypatch.setattr(verify.paths, "work_root", lambda: tmp_path)  # runs/ under tmp_path
     bar_out = io.StringIO()
     real_bar = verify._check_bar
     monkeypatch.setattr(verify, "_check_bar", lambda total, progress: real_bar(total, progress, file=bar_out))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import cases, parallel, runner
+from harness import cases, parallel, paths, runner
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import fsi
 
@@ -24,7 +24,7 @@ NAME = "elastic_obstacle"
 REQUIREMENT = ("Water from a collapsing column bends the elastic obstacle like the published solutions: peak "
                "tip displacement in [0.035, 0.055] m at t in [0.20, 0.28] s and RMS distance outside the "
                "published band <= 0.005 m, both as one continuum and with contact.")
-CASE = Path(__file__).resolve().parents[2] / "cases" / "elastic_obstacle.toml"
+CASE = paths.CASES / "elastic_obstacle.toml"
 
 
 def _run(cell: float, contact: bool, out: Path):

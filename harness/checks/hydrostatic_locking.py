@@ -17,11 +17,9 @@ pressure is gated with both projections.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from harness import cases, metrics, plots, runner
+from harness import cases, metrics, paths, plots, runner
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import hydrostatic as hs
 from harness.solver import pressure
@@ -30,9 +28,8 @@ NAME = "hydrostatic_locking"
 REQUIREMENT = ("With the volumetric projection on, the pressure of a settled water column (K = 2.13 GPa) matches "
                "rho0 g (H - y) to 0.5 % (L2, CPDI, finest grid), at least 4x better than without, and the "
                "collapsing-column pressure noise falls at least 4x.")
-REPO = Path(__file__).resolve().parents[2]
-COLUMN = REPO / "cases" / "hydrostatic_column.toml"
-DAM = REPO / "cases" / "water_column.toml"
+COLUMN = paths.CASES / "hydrostatic_column.toml"
+DAM = paths.CASES / "water_column.toml"
 H = 1.0
 SHAPES = ("mpm", "gimp", "cpdi")
 PROJS = ("none", "cell", "nodal")

@@ -14,19 +14,16 @@ for 10 s; its figure shows both.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from harness import cases, plots, runner, water
+from harness import cases, paths, plots, runner, water
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "resting_tank"
 REQUIREMENT = ("Water 1.2 m deep in the 2.5 m sinking_block tank stays at rest for 10 s without damping "
                "(incompressible): KE/(M g H) <= 1e-5, hydrostatic pressure to 1 %, surface drift <= 0.1 % H, "
                "volume change <= 0.5 %, no particle moves 0.1 h.")
-REPO = Path(__file__).resolve().parents[2]
-CASE = REPO / "cases" / "resting_tank.toml"
+CASE = paths.CASES / "resting_tank.toml"
 H, RHO, G = 1.2, 1000.0, 9.81
 WC_SETTINGS = ['solver.fluid="weakly_compressible"', 'solver.projection="cell"', "solver.projection_stabilization=0.1",
                "solver.flip=0.999", "solver.cfl=0.4"]

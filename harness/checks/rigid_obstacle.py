@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import cases, parallel, runner
+from harness import cases, parallel, paths, runner
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import fsi
 
 NAME = "rigid_obstacle"
 REQUIREMENT = ("A stiff bar (E = 10 GPa) struck by the collapsing column moves less than 1e-4 m at its tip, and "
                "the water passes over the bar (stiff and rigid) and reaches the far wall.")
-CASE = Path(__file__).resolve().parents[2] / "cases" / "rigid_obstacle.toml"
+CASE = paths.CASES / "rigid_obstacle.toml"
 WIDTH = 0.584
 
 

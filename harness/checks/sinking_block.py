@@ -25,11 +25,9 @@ with the volume constraint, so the block falls freely until it reaches the water
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from harness import cases, plots, runner
+from harness import cases, paths, plots, runner
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import fsi
 
@@ -37,7 +35,7 @@ NAME = "sinking_block"
 REQUIREMENT = ("A 0.3 m block (rho = 1100) dropped from 0.1 m enters the water at sqrt(2 g 0.1) (1 %), the water "
                "closes over it, it sinks to the floor (half a cell) and stays there, with mass conserved and no "
                "energy created (1 %).")
-CASE = Path(__file__).resolve().parents[2] / "cases" / "sinking_block.toml"
+CASE = paths.CASES / "sinking_block.toml"
 G, DROP, SURFACE = 9.81, 0.1, 1.2
 
 

@@ -14,20 +14,17 @@ as correction_work and kept out of the energy budget, which is the flow's.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import h5py
 import numpy as np
 
-from harness import cases, plots, refdata, runner
+from harness import cases, paths, plots, refdata, runner
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "water_column"
 REQUIREMENT = ("A water column (L = 0.146 m, 2L high) collapses in a slip-walled tank 4L wide and runs to "
                "completion with no energy created and its front behind Ritter's bound.")
-REPO = Path(__file__).resolve().parents[2]
-CASE = REPO / "cases" / "water_column.toml"
-MM_FRONT = REPO / "reference" / "data" / "martin_moyce_1952_front_n2eq2_a2.25in_table2.csv"
+CASE = paths.CASES / "water_column.toml"
+MM_FRONT = paths.REFERENCE / "data" / "martin_moyce_1952_front_n2eq2_a2.25in_table2.csv"
 L = 0.146
 G = 9.81
 

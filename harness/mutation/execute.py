@@ -67,7 +67,7 @@ class Worker:
             tar.extractall(self.dir, filter="data")
         (self.dir / ".venv").symlink_to(self.repo / ".venv")
         meson = str(self.repo / ".venv" / "bin" / "meson")
-        code, out, _ = _run([meson, "setup", "build", "fortran", "--python.install-env=auto",
+        code, out, _ = _run([meson, "setup", "build", ".", "--python.install-env=auto",
                              "-Dpython.bytecompile=-1"], self.dir, 600)
         if code != 0:
             raise RuntimeError(f"meson setup failed in {self.dir}:\n{out[-2000:]}")
@@ -81,7 +81,7 @@ class Worker:
             return None if code is None else False
         for so in (self.dir / "harness").glob("_cpdi*.so"):
             so.unlink()
-        for so in (self.dir / "build").glob("_cpdi*.so"):
+        for so in (self.dir / "build" / "fortran").glob("_cpdi*.so"):
             shutil.copy2(so, self.dir / "harness" / so.name)
         return True
 

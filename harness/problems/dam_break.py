@@ -7,14 +7,11 @@ so the best-fit shift of the simulated T is reported next to the unshifted misfi
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from harness import cases, refdata, runner
+from harness import cases, paths, refdata, runner
 
-REPO = Path(__file__).resolve().parents[2]
-CASE = REPO / "cases" / "dam_break.toml"
+CASE = paths.CASES / "dam_break.toml"
 L, G = 0.146, 9.81
 FRONT = refdata.read("martin_moyce_1952_front_n2eq2_a2.25in_table2.csv")
 HEIGHT = refdata.read("martin_moyce_1952_height_n2eq2_a2.25in_table6.csv")
