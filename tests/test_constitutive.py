@@ -140,3 +140,27 @@ def test_stable_step_is_the_p_wave_crossing_time(nu):
     dt = sim.stable_dt()
     sim.close()
     assert dt == pytest.approx(0.05 / np.sqrt((lam + 2 * mu) / RHO), rel=1e-12)
+
+
+@pytest.mark.parametrize("model", ["hencky", "neo_hookean"])
+def test_strain_energy_is_the_laws_stored_energy(model):
+    """The strain_energy diagnostic of a uniformly deformed block is psi(F) V0 with the law's
+    stored energy: Hencky psi = mu e:e + lam/2 tr(e)^2 (e = ln V), neo-Hookean
+    psi = mu/2 (tr C - 3) - mu ln J + lam/2 (ln J)^2."""
+    F4 = [1.05, 0.02, 0.03, 0.97]
+    parts = block_particles((0.4, 0.4), (0.5, 0.5), 0.05, 2, RHO)
+    sim = make_sim(parts, ncell=(20, 20), h=0.05, gravity=(0.0, 0.0),
+                   materials=[{"model": model, "density": RHO, "youngs_modulus": E, "poisson_ratio": NU}])
+    n = len(parts["x"])
+    sim.set_state(np.zeros((n, 2)), np.tile(F4, (n, 1)), 0.0)
+    sim.stable_dt()
+    energy = sim.diagnostics()["strain_energy"]
+    sim.close()
+    F = _mat3(F4)
+    J = np.linalg.det(F)
+    if model == "hencky":
+        e = 0.5 * logm_spd(F @ F.T)
+        psi = MU * np.trace(e @ e) + LAM / 2 * np.trace(e) ** 2
+    else:
+        psi = MU / 2 * (np.trace(F.T @ F) - 3) - MU * np.log(J) + LAM / 2 * np.log(J) ** 2
+    assert energy == pytest.approx(psi * parts["vol"].sum(), rel=1e-12)
