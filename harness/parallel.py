@@ -24,12 +24,15 @@ solver is OpenMP. Each task runs the solver on the worker's ``OMP_NUM_THREADS`` 
 the worker's environment says otherwise; distributed's nannies set 1), so ``jobs`` workers use
 ``jobs`` cores. Results do not depend on the thread count (bitwise, cpdi_schedule.f90).
 
-Worker deaths: a task whose worker dies while running it (killed, out of memory, a lost node) is
-run again on another worker, up to ``distributed.scheduler.allowed-failures`` times (3), after
-which its value is the ``KilledWorker`` error. The scheduler counts these deaths per task
-(``TaskState.suspicious``); pmap reads the count as each task finishes, before it lets the task go,
-and lists the re-run tasks in ``Cluster.reruns``. verify reports them (a note on the check and
-``execution`` in metrics.json); ``cpdi sweep`` prints them.
+Lost workers: a task whose worker dies while running it (killed, out of memory, a lost node) is run
+again on another worker, up to ``distributed.scheduler.allowed-failures`` times (3), after which its
+value is the ``KilledWorker`` error; a task whose worker leaves the cluster (a batch job's time
+limit) is run again too. Each task logs its key to the scheduler, synchronously, as it starts (an
+event topic per pmap call), so a task that started more than once was re-run, whatever the cause;
+a task only queued on the lost worker is not counted. pmap lists them in ``Cluster.reruns``: verify
+reports them (a note on the check and ``execution`` in metrics.json), ``cpdi sweep`` prints them.
+Results are taken and released as they arrive, so a worker lost after finishing a task does not
+make the cluster run it again.
 """
 
 from __future__ import annotations
@@ -38,18 +41,19 @@ import asyncio
 import logging
 import os
 import uuid
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 
 @dataclass
 class Rerun:
-    """A task that ran again because its worker died while running it."""
+    """A task that started more than once: the worker running it was lost."""
 
     task: str  # the function and the item's index, e.g. "_run[1]"
-    worker_deaths: int  # 1 = it ran twice
+    runs: int  # times it started (2: re-run once)
     context: str = ""  # what the caller was doing (verify: the check's name)
 
 
@@ -84,13 +88,12 @@ class Cluster:
 
     def summary(self, since: tuple[int, int, int] = (0, 0, 0)) -> dict[str, Any]:
         """``execution`` of metrics.json: where the runs ran, and the tasks run again after their
-        worker died (since ``since``)."""
+        worker was lost (since ``since``)."""
         reruns = self.reruns[since[1]:]
         return {"mode": self.mode, "description": self.describe(), "scheduler": self.address,
                 "workers": self.workers, "tasks": self.tasks - since[0], "tasks_rerun": len(reruns),
                 "reruns_uncounted": self.uncounted - since[2],
-                "reruns": [{"task": r.task, "worker_deaths": r.worker_deaths, "context": r.context}
-                           for r in reruns]}
+                "reruns": [asdict(r) for r in reruns]}
 
     def map(self, fn: Callable[..., Any], items: list[Any]) -> list[Any]:
         self.tasks += len(items)
@@ -101,51 +104,55 @@ class Cluster:
         name = getattr(fn, "__name__", "task")
         token = uuid.uuid4().hex[:8]
         keys = [f"{name}-{token}-{i}" for i in range(len(items))]
-        futures = self.client.map(_task, [fn] * len(items), items, key=keys)
+        topic = f"cpdi-pmap-{token}"  # each task logs its key here as it starts (_task)
+        futures = self.client.map(_task, [fn] * len(items), items, [topic] * len(items), key=keys)
         index = {k: i for i, k in enumerate(keys)}
         out: list[Any] = [None] * len(items)
         try:
-            for batch in as_completed(futures, loop=self.client.loop).batches():
-                deaths = self._worker_deaths([f.key for f in batch])
-                for f in batch:
-                    i = index[f.key]
-                    out[i] = _outcome(f)
-                    if deaths is None:
-                        self.uncounted += 1
-                    elif deaths.get(f.key, 0):
-                        self.reruns.append(Rerun(f"{name}[{i}]", deaths[f.key], self.context))
-                    f.release()  # its result is here: a later worker death must not recompute it
+            for f in as_completed(futures, loop=self.client.loop):
+                out[index[f.key]] = _outcome(f)
+                f.release()  # its result is here: a later worker death must not recompute it
         except BaseException:
             self.client.cancel(futures)
             raise
+        starts = self._starts(topic)
+        for i, k in enumerate(keys):
+            if starts is None or not starts.get(k):
+                self.uncounted += 1
+            elif starts[k] > 1:
+                self.reruns.append(Rerun(f"{name}[{i}]", starts[k], self.context))
         return out
 
-    def _worker_deaths(self, keys: list[str]) -> dict[str, int] | None:
-        """How many workers died running each of these (finished, still held) tasks; None if the
-        scheduler cannot be asked (it refuses pickled functions)."""
+    def _starts(self, topic: str) -> dict[str, int] | None:
+        """How often each task of one map started (the scheduler's log of ``topic``); None if it
+        cannot be read."""
         try:
-            return self.client.run_on_scheduler(_suspicious_counter(), keys=keys)
+            return Counter(msg for _, msg in self.client.get_events(topic))
         except Exception:
             return None
 
 
+def reruns_text(reruns: list[dict[str, Any]]) -> str:
+    """``N task(s) re-run after its/their worker was lost (which, how often)`` (summary()'s reruns)."""
+    n = len(reruns)
+    which = ", ".join(f"{r['context'] + ': ' if r['context'] else ''}`{r['task']}` (ran {r['runs']} times)"
+                      for r in reruns)
+    return f"{n} task{'s' * (n != 1)} re-run after {'its' if n == 1 else 'their'} worker was lost ({which})"
+
+
 def execution_text(summary: dict[str, Any]) -> str:
     """``summary()`` in one sentence, for the report and the console: where the runs ran, and
-    which tasks ran again after their worker died."""
+    which tasks ran again after their worker was lost."""
     text = f"{summary['description']}; {summary['tasks']} independent runs (pmap tasks)"
-    n = summary.get("tasks_rerun", 0)
-    if n:
-        which = ", ".join(f"{r['context'] + ': ' if r['context'] else ''}`{r['task']}`"
-                          f" ({r['worker_deaths']} worker death{'s' * (r['worker_deaths'] != 1)})"
-                          for r in summary["reruns"])
-        text += (f"; **{n} task{'s' * (n != 1)} re-run after {'its' if n == 1 else 'their'} worker died** "
-                 f"({which}); the results are complete, from the re-runs")
+    if summary.get("tasks_rerun"):
+        text += f"; **{reruns_text(summary['reruns'])}**; the results are complete, from the re-runs"
     if summary.get("reruns_uncounted"):
-        text += f"; worker deaths not known for {summary['reruns_uncounted']} tasks (the scheduler would not say)"
+        text += f"; re-runs not known for {summary['reruns_uncounted']} tasks (the scheduler's event log not read)"
     return text
 
 
 _active: Cluster | None = None
+CONNECT_TIMEOUT = "10s"  # for --scheduler
 
 
 def pmap(fn: Callable[..., Any], items: Iterable[Any], workers: int | None = None) -> list[Any]:
@@ -215,7 +222,7 @@ def _connect(address: str):
 
     _quiet()
     try:
-        return Client(address, timeout="10s", set_as_default=False)
+        return Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
         raise SchedulerUnreachable(f"--scheduler {address}: no Dask scheduler answers there ({exc}); start the "
                                    "cluster first (docs/running.md#parallel-and-distributed-runs)") from exc
@@ -226,21 +233,12 @@ def _local_cluster(n: int):
     from distributed import Client, LocalCluster
 
     _quiet()
-    # worker-saturation 1: a worker holds only the task it runs (none queued behind it), so the
-    # tasks a dying worker takes with it are exactly the ones it was running
+    # worker-saturation 1: of a large map, a worker is given a task only when it has a free thread, so
+    # long runs do not wait behind each other on one worker while another is free
     with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
-        local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                              silence_logs=logging.ERROR, memory_limit=0, env={"OMP_NUM_THREADS": "1"})
     return local, Client(local, set_as_default=False)
-
-
-def _suspicious_counter():
-    # nested, so cloudpickle sends it by value: the scheduler need not import the harness
-    def count(keys, dask_scheduler=None):
-        tasks = dask_scheduler.tasks
-        return {k: tasks[k].suspicious for k in keys if k in tasks}
-
-    return count
 
 
 def _omp_threads() -> int:
@@ -250,10 +248,15 @@ def _omp_threads() -> int:
         return 1
 
 
-def _task(fn, item):
-    """One pmap item on a Dask worker: the solver on the worker's OMP_NUM_THREADS threads."""
+def _task(fn, item, topic: str):
+    """One pmap item on a Dask worker: logs its start under ``topic`` (synchronously: the scheduler
+    has it before the run begins, however soon the worker dies), then runs fn with the solver on the
+    worker's OMP_NUM_THREADS threads."""
+    from distributed import get_client, get_worker
+
     from harness import solver
 
+    get_client().log_event(topic, get_worker().get_current_task())
     solver.threads(_omp_threads())
     return _safe(fn, item)
 

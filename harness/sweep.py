@@ -14,7 +14,7 @@ particle updates per second and, for every probe series, its final value (``fina
 The runs go side by side to a Dask cluster (harness.parallel): a local one of ``--jobs``
 single-threaded workers (default: one per core), or the existing cluster at ``--scheduler``;
 ``--jobs 1`` runs them one after another in this process, with progress bars. A run whose worker
-died is run again and named in the closing lines.
+was lost is run again and named in the closing lines.
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ import importlib
 import os
 import sys
 import time
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -71,10 +72,8 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
 
 
 def _rerun_note(reruns: list[parallel.Rerun]) -> str:
-    tasks = ", ".join(f"`{r.task}` ({r.worker_deaths} worker death{'s' * (r.worker_deaths != 1)})" for r in reruns)
-    return (f"**Re-run after a worker died:** {len(reruns)} of this check's cluster tasks ({tasks}) ran again "
-            "because the worker running it died; the results above are complete, from the re-runs (a run "
-            "gives the same bits wherever it runs).")
+    return (f"**Re-run:** {parallel.reruns_text([asdict(r) | {'context': ''} for r in reruns])}. The results "
+            "above are complete, from the re-runs (a run gives the same bits wherever it runs).")
 
 
 def _point_latest(out_dir: Path) -> None:
