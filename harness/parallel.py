@@ -12,7 +12,8 @@ Where the items run:
     ``dask worker``, or a dask-jobqueue SLURMCluster: docs/running.md). Its workers must import
     this harness and see the same file system (the runs write their outputs there);
   - otherwise a ``LocalCluster`` of ``jobs`` worker processes (default: the cores this process
-    may use), each single-threaded with ``OMP_NUM_THREADS=1``, no dashboard, quiet logs;
+    may use), each single-threaded with ``OMP_NUM_THREADS=1``, no memory limit, quiet logs, its
+    HTTP server (and dashboard, if bokeh is installed) on a free port;
   - ``jobs=1`` (or one core) without a scheduler starts no cluster: pmap runs in this process.
 
 * outside one, pmap starts a LocalCluster for that call alone (none for one item or one core).
@@ -67,7 +68,7 @@ class Cluster:
     address: str | None = None
     tasks: int = 0  # pmap items run
     reruns: list[Rerun] = field(default_factory=list)
-    uncounted: int = 0  # tasks whose worker deaths could not be read from the scheduler
+    uncounted: int = 0  # tasks whose starts could not be read from the scheduler (re-runs unknown)
     context: str = ""  # set by the caller (verify: the running check), copied into each Rerun
 
     @property
@@ -97,7 +98,7 @@ class Cluster:
 
     def map(self, fn: Callable[..., Any], items: list[Any]) -> list[Any]:
         self.tasks += len(items)
-        if self.serial:
+        if self.serial or not items:
             return [_safe(fn, it) for it in items]
         from distributed import as_completed
 
@@ -116,14 +117,13 @@ class Cluster:
             self.client.cancel(futures)
             raise
         starts = self._starts(topic)
-        for i, k in enumerate(keys):
-            if starts is None or not starts.get(k):
-                self.uncounted += 1
-            elif starts[k] > 1:
-                self.reruns.append(Rerun(f"{name}[{i}]", starts[k], self.context))
+        if starts is None:
+            self.uncounted += len(items)
+            return out
+        self.reruns += [Rerun(f"{name}[{i}]", starts[k], self.context) for i, k in enumerate(keys) if starts[k] > 1]
         return out
 
-    def _starts(self, topic: str) -> dict[str, int] | None:
+    def _starts(self, topic: str) -> Counter | None:
         """How often each task of one map started (the scheduler's log of ``topic``); None if it
         cannot be read."""
         try:

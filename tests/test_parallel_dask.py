@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from harness import cli, parallel, verify
+from harness import cli, parallel, report, verify
 from harness.checks.base import CheckResult, Gate
 
 REPO = Path(__file__).resolve().parent.parent
@@ -127,6 +127,9 @@ def test_worker_killed_during_a_run_is_rerun_and_reported(tmp_path, monkeypatch)
     assert "**Re-run:** 1 task re-run after its worker was lost (`_run_then_kill_worker_once[1]` (ran 2" in report_md
     stored = json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert stored["execution"] == ex
+    report.rerender(tmp_path / "report")  # from results.json alone
+    assert (tmp_path / "report" / "report.md").read_text() == report_md
+    assert json.loads((tmp_path / "report" / "metrics.json").read_text()) == stored
 
 
 # ------------------------------------------------------------------ --scheduler ADDRESS
