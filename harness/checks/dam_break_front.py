@@ -80,6 +80,10 @@ def _snap_run(n, projection, kinematics, out: Path, t_end, incompressible=False)
             "summary": r.summary, "volume_change": abs(vc)}
 
 
+def _either_run(fn, args):
+    return fn(*args)
+
+
 def _gates(res: CheckResult, m: dict, prefix: str = "") -> list[Gate]:
     return [Gate.at_most(prefix + "front_rms_dz_shifted", m["front_rms_dz_shifted"], 0.10),
             Gate.at_most(prefix + "abs_front_time_shift", abs(m["front_time_shift"]), 0.25),
@@ -99,8 +103,10 @@ def run(ctx: CheckContext) -> CheckResult:
     k_jobs = [(n_fine, "cpdi", "cell", K) for K in (2e6, 2e7, 2e8)]
     print(f"[{NAME}] 2 real-K runs and the incompressible one, then {len(table_jobs) + len(k_jobs)} reduced-K "
           "runs, side by side", flush=True)
-    big = parallel.pmap(_snap_run, [j[1] for j in jobs])
-    small = parallel.pmap(_table_run, table_jobs + k_jobs)
+    # one map, the long runs first: the short ones fill the workers the long ones leave free
+    outs = parallel.pmap(_either_run, [(_snap_run, j[1]) for j in jobs]
+                         + [(_table_run, j) for j in table_jobs + k_jobs])
+    big, small = outs[:len(jobs)], outs[len(jobs):]
     gated, off, inc = big
     for (label, _), out in zip(jobs, big, strict=True):
         if label != "off" and isinstance(out, Exception):
