@@ -55,6 +55,7 @@ class Rerun:
 
     task: str  # the function and the item's index, e.g. "_run[1]"
     runs: int  # times it started (2: re-run once)
+    index: int  # the item's index in its pmap call
     context: str = ""  # what the caller was doing (verify: the check's name)
 
 
@@ -120,7 +121,7 @@ class Cluster:
         if starts is None:
             self.uncounted += len(items)
             return out
-        self.reruns += [Rerun(f"{name}[{i}]", starts[k], self.context) for i, k in enumerate(keys) if starts[k] > 1]
+        self.reruns += [Rerun(f"{name}[{i}]", starts[k], i, self.context) for i, k in enumerate(keys) if starts[k] > 1]
         return out
 
     def _starts(self, topic: str) -> Counter | None:

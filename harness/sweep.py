@@ -169,7 +169,7 @@ def main(case_path: str, assignments: list[str], out: Path, metric: str = "wall_
         outs = parallel.pmap(_run, [(str(Path(case_path).resolve()), [f"{k}={v}" for k, v in combo.items()],
                                      out / f"run_{i:03d}", progress and pool.serial)
                                     for i, combo in enumerate(combos)])
-        execution = pool.summary()
+        reruns, uncounted = pool.reruns, pool.uncounted
     rows: list[dict] = []
     series_cols: list[str] = []
     for i, (combo, res) in enumerate(zip(combos, outs, strict=True)):
@@ -186,8 +186,12 @@ def main(case_path: str, assignments: list[str], out: Path, metric: str = "wall_
             if f"final.{name}" not in series_cols:
                 series_cols.append(f"final.{name}")
         rows.append(row)
-    if execution["tasks_rerun"] or execution["reruns_uncounted"]:
-        print(f"[sweep] {parallel.execution_text(execution).replace('**', '')}", flush=True)
+    for r in reruns:
+        print(f"[sweep] run_{r.index:03d} was run {r.runs} times: its worker was lost; the row is the last run's",
+              flush=True)
+    if uncounted:
+        print("[sweep] the scheduler's event log could not be read: runs re-run after a lost worker are not known",
+              flush=True)
     columns = ["run", *keys, *BASE_COLUMNS, *series_cols] + (["error"] if any("error" in r for r in rows) else [])
     if metric not in columns:
         print(f"error: --metric {metric!r} is not a column of the table; choose one of: "

@@ -120,7 +120,7 @@ def test_worker_killed_during_a_run_is_rerun_and_reported(tmp_path, monkeypatch)
     assert len({m[f"front_x_{i}"] for i in range(4)}) == 1, "the re-run gives the same result as the others"
     ex = metrics["execution"]
     assert ex["tasks"] == 4 and ex["tasks_rerun"] == 1
-    assert ex["reruns"] == [{"task": "_run_then_kill_worker_once[1]", "runs": 2, "context": NAME}]
+    assert ex["reruns"] == [{"task": "_run_then_kill_worker_once[1]", "runs": 2, "index": 1, "context": NAME}]
     report_md = (tmp_path / "report" / "report.md").read_text()
     assert ("**1 task re-run after its worker was lost (killed_worker: `_run_then_kill_worker_once[1]` (ran 2 "
             "times))**; the results are complete") in report_md
