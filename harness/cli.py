@@ -15,6 +15,7 @@ from pathlib import Path
 
 from harness import paths
 from harness.cases import CaseError
+from harness.parallel import SchedulerUnreachable
 
 
 def _err(msg: str) -> None:
@@ -57,11 +58,25 @@ def cmd_run(args) -> int:
     return 0
 
 
+def _cluster_args(args) -> bool:
+    """--jobs and --scheduler: True if they are usable, else one error line."""
+    if args.jobs is not None and args.jobs < 1:
+        _err(f"--jobs {args.jobs}: give at least 1 (1 runs everything in this process, no cluster)")
+        return False
+    if args.jobs is not None and args.scheduler:
+        _err("--jobs and --scheduler exclude each other: an existing cluster has its own workers")
+        return False
+    return True
+
+
 def cmd_verify(args) -> int:
     from harness import verify
 
+    if not _cluster_args(args):
+        return 2
     return verify.main(quick=args.quick, only=args.only, out=Path(args.out) if args.out else None,
-                       progress=not args.no_progress, regen_gold=args.regen_gold)
+                       progress=not args.no_progress, regen_gold=args.regen_gold, jobs=args.jobs,
+                       scheduler=args.scheduler)
 
 
 def cmd_report(args) -> int:
@@ -104,8 +119,11 @@ def cmd_sweep(args) -> int:
     if not Path(args.case).is_file():
         _err(f"case file {args.case} does not exist")
         return 2
+    if not _cluster_args(args):
+        return 2
     out = Path(args.out) if args.out else paths.work_root() / "runs" / "sweep" / Path(args.case).stem
-    return sweep.main(args.case, args.set, out, metric=args.metric, progress=not args.no_progress)
+    return sweep.main(args.case, args.set, out, metric=args.metric, progress=not args.no_progress,
+                      jobs=args.jobs, scheduler=args.scheduler)
 
 
 def cmd_bench(args) -> int:
@@ -119,6 +137,16 @@ def cmd_mutate(args) -> int:
 
     return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
                          resume=args.resume, only=args.only, report_only=args.report_only)
+
+
+def _add_cluster_args(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help=f"run {what} on a local Dask cluster of N single-threaded worker processes (default: the "
+                        "cores this process may use); --jobs 1 runs them one after another in this process")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"send {what} to the existing Dask cluster whose scheduler is at ADDRESS (e.g. "
+                        "tcp://login1:8786, a dask-jobqueue SLURMCluster: see docs/running.md); its workers "
+                        "must import this harness and share this file system")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -145,6 +173,7 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--no-progress", action="store_true")
     v.add_argument("--regen-gold", action="store_true",
                    help="run the full and quick tiers and rewrite reference/gold/metrics.json (never in CI)")
+    _add_cluster_args(v, "the checks' independent runs")
     v.set_defaults(func=cmd_verify)
     rep = sub.add_parser("report", help="re-render a report from stored data")
     rep.add_argument("dir", help="report directory")
@@ -153,8 +182,9 @@ def parser() -> argparse.ArgumentParser:
     gt.add_argument("metrics", help="metrics.json of a verify run")
     gt.set_defaults(func=cmd_gate)
     sw = sub.add_parser("sweep", help="parameter study: run the cartesian product of case overrides",
-                        description="Run CASE once per combination of the --set values (serially) and write one "
-                                    "table (sweep.csv, sweep.md) and one plot of --metric (sweep.png) in OUT.")
+                        description="Run CASE once per combination of the --set values (side by side on a Dask "
+                                    "cluster: --jobs, --scheduler) and write one table (sweep.csv, sweep.md) and "
+                                    "one plot of --metric (sweep.png) in OUT.")
     sw.add_argument("case", help="case file (TOML)")
     sw.add_argument("--set", action="append", default=[], required=True, metavar="SECTION.KEY=V1,V2,...",
                     help="values of one case key, comma-separated, e.g. --set solver.cfl=0.3,0.5 (repeatable; "
@@ -163,6 +193,7 @@ def parser() -> argparse.ArgumentParser:
                     help="the table column to plot (default wall_s; e.g. steps, final.front_x)")
     sw.add_argument("--out", help="output directory (default runs/sweep/<case file stem>)")
     sw.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _add_cluster_args(sw, "the runs")
     sw.set_defaults(func=cmd_sweep)
     b = sub.add_parser("bench", help="performance benchmark")
     b.add_argument("--quick", action="store_true")
@@ -185,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.func(args)
-    except CaseError as exc:
+    except (CaseError, SchedulerUnreachable) as exc:
         _err(str(exc))
         return 2
     except KeyboardInterrupt:

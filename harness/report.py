@@ -33,7 +33,7 @@ from jinja2 import Environment, FileSystemLoader, StrictUndefined
 from markdown_it import MarkdownIt
 from markupsafe import Markup
 
-from harness import junit
+from harness import junit, parallel
 from harness.checks.base import CheckResult
 
 SCHEMA = 1
@@ -102,9 +102,12 @@ def _overall_passed(results: list[CheckResult], gate_summary: list[dict] | None)
 
 
 def build_metrics(
-    results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None = None
+    results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None = None,
+    execution: dict | None = None,
 ) -> dict[str, Any]:
-    """The ``metrics.json`` document (schema 1). Extra per-check keys: verdict, wall_s, error."""
+    """The ``metrics.json`` document (schema 1). Extra per-check keys: verdict, wall_s, error. With
+    ``execution`` (harness.parallel.Cluster.summary: where the runs ran, the tasks re-run after their
+    worker died) it is added as the top-level key ``execution``."""
     checks: dict[str, Any] = {}
     for r in results:
         checks[r.name] = {
@@ -134,6 +137,7 @@ def build_metrics(
             "quick": bool(quick),
             "provenance": dict(provenance),
             "checks": checks,
+            **({"execution": execution} if execution is not None else {}),
         }
     )
 
@@ -313,7 +317,7 @@ def _figure(out_dir: Path, name: str) -> dict[str, str]:
 
 
 def _context(results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None,
-             passed: bool, bench: dict | None) -> dict[str, Any]:
+             passed: bool, bench: dict | None, execution: dict | None = None) -> dict[str, Any]:
     """What both templates see."""
     rows = [{**row, "status": str(row.get("status", ""))} for row in gate_summary or []]
     gate_rows = []
@@ -333,6 +337,7 @@ def _context(results: list[CheckResult], provenance: dict, quick: bool, gate_sum
         "bench_intro": _bench_intro(bench) if bench else "",
         "bench_summary_rows": _bench_summary_rows(bench) if bench else [],
         "bench_header": BENCH_HEADER, "bench_rows": _bench_rows(bench) if bench else [],
+        "execution": parallel.execution_text(execution) if execution else "",
     }
 
 
@@ -344,10 +349,11 @@ def render_html(
     gate_summary: list[dict] | None,
     passed: bool,
     bench: dict | None = None,
+    execution: dict | None = None,
 ) -> str:
     """index.html (templates/index.html.j2): a table of contents, an anchor per check (id = its
     name), every figure embedded as a data: URI."""
-    ctx = _context(results, provenance, quick, gate_summary, passed, bench)
+    ctx = _context(results, provenance, quick, gate_summary, passed, bench, execution)
     ctx["css"] = Markup(_CSS)
     ctx["figures"] = {r.name: [_figure(out_dir, f) for f in r.figures] for r in results}
     ctx["bench_figures"] = [_figure(out_dir, f) for f in BENCH_FIGURES if bench and _figure_path(out_dir, f).is_file()]
@@ -356,10 +362,11 @@ def render_html(
 
 def render_markdown(
     results: list[CheckResult], provenance: dict, quick: bool, gate_summary: list[dict] | None, passed: bool,
-    bench: dict | None = None,
+    bench: dict | None = None, execution: dict | None = None,
 ) -> str:
     """report.md (templates/report.md.j2); figures referenced as figures/NAME."""
-    text = _env().get_template("report.md.j2").render(_context(results, provenance, quick, gate_summary, passed, bench))
+    ctx = _context(results, provenance, quick, gate_summary, passed, bench, execution)
+    text = _env().get_template("report.md.j2").render(ctx)
     return text.rstrip("\n") + "\n"
 
 
@@ -373,13 +380,14 @@ def _render(out_dir: Path, payload: dict[str, Any]) -> dict[str, Any]:
     quick = bool(payload.get("quick", False))
     gate_summary = payload.get("gate_summary") or None
     bench = payload.get("bench") or None
-    metrics = build_metrics(results, provenance, quick, gate_summary)
+    execution = payload.get("execution")
+    metrics = build_metrics(results, provenance, quick, gate_summary, execution)
     _dump(out_dir / "metrics.json", metrics)
     junit.write(out_dir / "junit.xml", metrics, gate_summary)
     passed = bool(metrics["passed"])
-    md = render_markdown(results, provenance, quick, gate_summary, passed, bench)
+    md = render_markdown(results, provenance, quick, gate_summary, passed, bench, execution)
     (out_dir / "report.md").write_text(md, encoding="utf-8")
-    page = render_html(out_dir, results, provenance, quick, gate_summary, passed, bench)
+    page = render_html(out_dir, results, provenance, quick, gate_summary, passed, bench, execution)
     (out_dir / "index.html").write_text(page, encoding="utf-8")
     return metrics
 
@@ -391,9 +399,11 @@ def write_report(
     quick: bool,
     gate_summary: list[dict] | None = None,
     bench_dir: Path | None = None,
+    execution: dict | None = None,
 ) -> dict[str, Any]:
     """Write the full report into ``out_dir`` and return the metrics.json dict. With
-    ``bench_dir`` holding a bench.json (make bench), its numbers and plots are included.
+    ``bench_dir`` holding a bench.json (make bench), its numbers and plots are included; with
+    ``execution`` (harness.parallel.Cluster.summary), where the runs ran and which ran again.
 
     Overall ``passed`` is true iff there is at least one check, every check passed and
     no ``gate_summary`` row has status ``"regressed"``.
@@ -408,6 +418,7 @@ def write_report(
         "gate_summary": gate_summary,
         "results": [r.to_dict() for r in results],
         "bench": _load_bench(out_dir, bench_dir),
+        **({"execution": execution} if execution is not None else {}),
     }
     _dump(out_dir / "results.json", payload)
     # Render from the stored JSON so that rerender() gives byte-identical output.

@@ -51,6 +51,9 @@ class RunFailed(RuntimeError):
         super().__init__(message)
         self.summary = summary
 
+    def __reduce__(self):  # pmap returns it from a worker
+        return type(self), (str(self), self.summary)
+
 
 class RunInterrupted(RuntimeError):
     """The run was stopped on request; ``summary`` holds what was written, ``exit_code`` the

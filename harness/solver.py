@@ -42,6 +42,9 @@ class CpdiError(RuntimeError):
         self.routine = routine
         super().__init__(message)
 
+    def __reduce__(self):  # pickled as (code, message, routine): pmap returns it from a worker
+        return type(self), (self.code, str(self), self.routine)
+
 
 def _load_extension():
     try:

@@ -1,7 +1,7 @@
 """``cpdi sweep``: a parameter study over case overrides.
 
 ``cpdi sweep CASE --set grid.cell=0.0146,0.0073 --set solver.cfl=0.3,0.5`` runs the cartesian
-product of the values (serially, in the order given, the last ``--set`` varying fastest), each
+product of the values (numbered in the order given, the last ``--set`` varying fastest), each
 run into ``OUT/run_NNN/`` as ``cpdi run`` would, and writes one table of the results
 (``OUT/sweep.csv`` and ``OUT/sweep.md``) and one plot of a chosen summary metric
 (``OUT/sweep.png``: the metric against the first swept key, one line per combination of the others).
@@ -10,6 +10,11 @@ The table has, per run: the swept values, status, particles, steps, simulated ti
 particle updates per second and, for every probe series, its final value (``final.<series>``).
 ``--metric`` names any of these columns (default ``wall_s``). A failed run is a row with status
 ``failed`` and its error; the sweep goes on and exits 1 at the end.
+
+The runs go side by side to a Dask cluster (harness.parallel): a local one of ``--jobs``
+single-threaded workers (default: one per core), or the existing cluster at ``--scheduler``;
+``--jobs 1`` runs them one after another in this process, with progress bars. A run whose worker
+was lost is run again and named in the closing lines.
 """
 
 from __future__ import annotations
@@ -133,8 +138,20 @@ def plot(rows: list[dict], keys: list[str], metric: str, out: Path, title: str) 
     return path
 
 
-def main(case_path: str, assignments: list[str], out: Path, metric: str = "wall_s", progress: bool = True) -> int:
+def _run(case_path: str, overrides: list[str], run_dir: Path, progress: bool):
+    """One run of the sweep (on a cluster worker): (summary, final value of each probe series, error)."""
     from harness import cases, runner
+
+    try:
+        res = runner.run(cases.load(case_path, overrides), run_dir, progress=progress)
+    except runner.RunFailed as exc:
+        return exc.summary, {}, str(exc)
+    return res.summary, {k: float(v[-1]) for k, v in res.series.items() if k != "t" and len(v)}, None
+
+
+def main(case_path: str, assignments: list[str], out: Path, metric: str = "wall_s", progress: bool = True,
+         jobs: int | None = None, scheduler: str | None = None) -> int:
+    from harness import cases, parallel
 
     axes = parse_axes(assignments)
     if not axes:
@@ -143,28 +160,38 @@ def main(case_path: str, assignments: list[str], out: Path, metric: str = "wall_
     for combo in combos:  # every combination validates before anything runs
         cases.load(case_path, [f"{k}={v}" for k, v in combo.items()])
     keys = [k for k, _ in axes]
+    out = out.resolve()  # the workers may not share this process's working directory
     out.mkdir(parents=True, exist_ok=True)
+    with parallel.cluster(jobs, scheduler) as pool:
+        print(f"[sweep] {len(combos)} runs: {pool.describe()}", flush=True)
+        for i, combo in enumerate(combos):
+            print(f"[sweep] run_{i:03d}: " + ", ".join(f"{k}={v}" for k, v in combo.items()), flush=True)
+        outs = parallel.pmap(_run, [(str(Path(case_path).resolve()), [f"{k}={v}" for k, v in combo.items()],
+                                     out / f"run_{i:03d}", progress and pool.serial)
+                                    for i, combo in enumerate(combos)])
+        reruns, uncounted = pool.reruns, pool.uncounted
     rows: list[dict] = []
     series_cols: list[str] = []
-    for i, combo in enumerate(combos):
-        case = cases.load(case_path, [f"{k}={v}" for k, v in combo.items()])
-        run_dir = out / f"run_{i:03d}"
-        row: dict = {"run": run_dir.name, **combo}
-        print(f"[sweep] {i + 1}/{len(combos)}: " + ", ".join(f"{k}={v}" for k, v in combo.items()), flush=True)
-        try:
-            res = runner.run(case, run_dir, progress=progress)
-            summary, series = res.summary, res.series
-        except runner.RunFailed as exc:
-            summary, series = exc.summary, {}
-            row["error"] = str(exc)
-            print(f"[sweep]   failed: {exc}", flush=True)
+    for i, (combo, res) in enumerate(zip(combos, outs, strict=True)):
+        row: dict = {"run": f"run_{i:03d}", **combo}
+        if isinstance(res, Exception):  # not a solver failure: the run could not be made
+            res = ({"status": "failed"}, {}, f"{type(res).__name__}: {res}")
+        summary, finals, error = res
+        if error is not None:
+            row["error"] = error
+            print(f"[sweep] {row['run']} failed: {error}", flush=True)
         row.update({c: summary.get(c) for c in BASE_COLUMNS})
-        for name, values in series.items():
-            if name != "t" and len(values):
-                row[f"final.{name}"] = float(values[-1])
-                if f"final.{name}" not in series_cols:
-                    series_cols.append(f"final.{name}")
+        for name, value in finals.items():
+            row[f"final.{name}"] = value
+            if f"final.{name}" not in series_cols:
+                series_cols.append(f"final.{name}")
         rows.append(row)
+    for r in reruns:
+        print(f"[sweep] run_{r.index:03d} was run {r.runs} times: its worker was lost; the row is the last run's",
+              flush=True)
+    if uncounted:
+        print("[sweep] the scheduler's event log could not be read: runs re-run after a lost worker are not known",
+              flush=True)
     columns = ["run", *keys, *BASE_COLUMNS, *series_cols] + (["error"] if any("error" in r for r in rows) else [])
     if metric not in columns:
         print(f"error: --metric {metric!r} is not a column of the table; choose one of: "

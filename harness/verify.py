@@ -7,14 +7,16 @@ and the others still run. The report directory is ``reports/<UTC stamp>/`` and
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import sys
 import time
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 
-from harness import gate, paths, provenance, report
+from harness import gate, parallel, paths, provenance, report
 from harness.checks.base import CheckContext, CheckResult
 
 CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front",
@@ -37,6 +39,7 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
     from tqdm import tqdm
 
     results = []
+    pool = parallel.active()
     with _check_bar(len(names), progress) as bar:
         for name in names:
             mod = importlib.import_module(f"harness.checks.{name}")
@@ -46,11 +49,16 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
             bar.set_postfix_str(f"running {name}")
             tqdm.write(f"[verify] {name}: {mod.REQUIREMENT}", file=sys.stdout)
             t0 = time.perf_counter()
+            seen = len(pool.reruns) if pool else 0
+            if pool:
+                pool.context = name
             try:
                 res = mod.run(ctx)
             except Exception as exc:  # one broken check must not hide the others
                 res = CheckResult(name=name, requirement=mod.REQUIREMENT, error=f"{type(exc).__name__}: {exc}")
             res.wall_s = time.perf_counter() - t0
+            if pool and pool.reruns[seen:]:
+                res.notes.append(_rerun_note(pool.reruns[seen:]))
             tqdm.write(f"[verify] {name}: {'PASS' if res.passed else 'FAIL'} - {res.verdict} ({res.wall_s:.1f} s)",
                        file=sys.stdout)
             sys.stdout.flush()
@@ -58,7 +66,14 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
             if len(results) == len(names):
                 bar.set_postfix_str("", refresh=False)
             bar.update(1)
+    if pool:
+        pool.context = ""
     return results
+
+
+def _rerun_note(reruns: list[parallel.Rerun]) -> str:
+    return (f"**Re-run:** {parallel.reruns_text([asdict(r) | {'context': ''} for r in reruns])}. The results "
+            "above are complete, from the re-runs (a run gives the same bits wherever it runs).")
 
 
 def _point_latest(out_dir: Path) -> None:
@@ -71,15 +86,22 @@ def _point_latest(out_dir: Path) -> None:
         pass
 
 
-def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tuple[dict, list[dict]]:
-    """Run the checks, compare with gold, write the report; returns (metrics, gate rows)."""
+def verify(quick: bool, names: list[str], out_dir: Path, progress: bool, jobs: int | None = None,
+           scheduler: str | None = None) -> tuple[dict, list[dict]]:
+    """Run the checks, compare with gold, write the report; returns (metrics, gate rows). The checks'
+    independent runs go to the active parallel.cluster, or to one opened here (jobs, scheduler)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     prov = provenance.collect(paths.SOURCE_ROOT, paths.build_dir())
-    results = run_checks(names, out_dir, quick, progress)
+    active = parallel.active()
+    with contextlib.nullcontext(active) if active else parallel.cluster(jobs, scheduler) as pool:
+        print(f"[verify] independent runs: {pool.describe()}", flush=True)
+        since = pool.mark()
+        results = run_checks(names, out_dir, quick, progress)
+        execution = pool.summary(since)
     draft = report.build_metrics(results, prov, quick)
     rows = gate.compare(draft, gate.load_gold(), "quick" if quick else "full")
     metrics = report.write_report(out_dir, results, prov, quick, gate_summary=rows or None,
-                                  bench_dir=paths.work_root() / "reports" / "bench")
+                                  bench_dir=paths.work_root() / "reports" / "bench", execution=execution)
     width = max(len(r.name) for r in results)
     print("\n" + "check".ljust(width) + "  result  verdict")
     for r in results:
@@ -92,6 +114,7 @@ def verify(quick: bool, names: list[str], out_dir: Path, progress: bool) -> tupl
         bad = sum(r["status"] == "regressed" for r in rows)
         print(f"gold: {len(rows)} metrics compared, {bad} regressed, "
               f"{sum(r['status'] == 'improved' for r in rows)} improved")
+    print(f"runs: {parallel.execution_text(execution).replace('**', '')}")
     print(f"\nreport: {out_dir}/index.html ({'quick' if quick else 'full'} tier)")
     return metrics, rows
 
@@ -101,7 +124,7 @@ def _stamp(quick: bool) -> str:
 
 
 def main(quick: bool = False, only: list[str] | None = None, out: Path | None = None, progress: bool = True,
-         regen_gold: bool = False) -> int:
+         regen_gold: bool = False, jobs: int | None = None, scheduler: str | None = None) -> int:
     names = CHECKS if not only else only
     unknown = [n for n in names if n not in CHECKS + EXPERIMENTAL]
     if unknown:
@@ -114,20 +137,21 @@ def main(quick: bool = False, only: list[str] | None = None, out: Path | None = 
             print("error: --regen-gold runs every check; drop --only", file=sys.stderr)
             return 2
         tiers = {}
-        for tier_quick in (False, True):
-            out_dir = paths.work_root() / "reports" / _stamp(tier_quick)
-            metrics, _ = verify(tier_quick, CHECKS, out_dir, progress)
-            failed = [n for n, c in metrics["checks"].items() if not c["passed"]]
-            if failed:
-                print(f"error: gold not written: checks failed in the {'quick' if tier_quick else 'full'} tier: "
-                      f"{', '.join(failed)}; fix them first", file=sys.stderr)
-                return 1
-            tiers["quick" if tier_quick else "full"] = metrics
+        with parallel.cluster(jobs, scheduler):  # one cluster for both tiers
+            for tier_quick in (False, True):
+                out_dir = paths.work_root() / "reports" / _stamp(tier_quick)
+                metrics, _ = verify(tier_quick, CHECKS, out_dir, progress)
+                failed = [n for n, c in metrics["checks"].items() if not c["passed"]]
+                if failed:
+                    print(f"error: gold not written: checks failed in the {'quick' if tier_quick else 'full'} "
+                          f"tier: {', '.join(failed)}; fix them first", file=sys.stderr)
+                    return 1
+                tiers["quick" if tier_quick else "full"] = metrics
         gate.write_gold(tiers, metrics["provenance"])
         print(f"wrote {gate.GOLD}: review the diff and commit it")
         return 0
     out_dir = out or paths.work_root() / "reports" / _stamp(quick)
-    metrics, _ = verify(quick, names, out_dir, progress)
+    metrics, _ = verify(quick, names, out_dir, progress, jobs, scheduler)
     if out is None:
         _point_latest(out_dir)
     return 0 if metrics["passed"] else 1

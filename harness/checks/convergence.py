@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness import metrics, plots
+from harness import metrics, parallel, plots
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import mms
 from harness.problems import vibrating_bar as bar
@@ -48,20 +48,28 @@ def _solve(case: str, shape: str, n: int) -> dict:
     return mms.run(mms.PROBLEMS[case], shape, n)
 
 
+def _levels(case: str, quick: bool) -> list[int]:
+    return LEVELS[case][:3] if quick else LEVELS[case]
+
+
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
-    for case, levels in LEVELS.items():
-        levels = levels[:3] if ctx.quick else levels
+    jobs = [(case, shape, n) for case in LEVELS for shape in SHAPES for n in _levels(case, ctx.quick)]
+    solved = dict(zip(jobs, parallel.pmap(_solve, jobs), strict=True))  # every level of every study at once
+    for case in LEVELS:
+        levels = _levels(case, ctx.quick)
         curves = {}
         for shape in SHAPES:
             rows = []
             for n in levels:
-                try:
-                    rows.append(_solve(case, shape, n))
-                except CpdiError as exc:
-                    res.notes.append(f"{case}/{shape.upper()} at n = {n}: the run failed ({exc.kind}): {exc}. "
+                out = solved[(case, shape, n)]
+                if isinstance(out, CpdiError):
+                    res.notes.append(f"{case}/{shape.upper()} at n = {n}: the run failed ({out.kind}): {out}. "
                                      "Reported as a result: this interpolation does not converge here.")
                     break
+                if isinstance(out, Exception):
+                    raise out
+                rows.append(out)
             if len(rows) < 2:
                 res.metrics[f"order_l2_{case}_{shape}"] = float("nan")
                 continue

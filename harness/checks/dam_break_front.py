@@ -80,6 +80,10 @@ def _snap_run(n, projection, kinematics, out: Path, t_end, incompressible=False)
             "summary": r.summary, "volume_change": abs(vc)}
 
 
+def _either_run(fn, args):
+    return fn(*args)
+
+
 def _gates(res: CheckResult, m: dict, prefix: str = "") -> list[Gate]:
     return [Gate.at_most(prefix + "front_rms_dz_shifted", m["front_rms_dz_shifted"], 0.10),
             Gate.at_most(prefix + "abs_front_time_shift", abs(m["front_time_shift"]), 0.25),
@@ -91,19 +95,22 @@ def run(ctx: CheckContext) -> CheckResult:
     n_fine = 10 if ctx.quick else 20
     levels = [10, 20] if ctx.quick else [10, 20, 40]
     t_end = 0.5
+    n_inc = 2 * n_fine
     jobs = [("gated", (n_fine, "cell", "log", ctx.runs_dir / "enhanced", t_end)),
-            ("off", (n_fine, "none", "small", ctx.runs_dir / "plain", t_end))]
+            ("off", (n_fine, "none", "small", ctx.runs_dir / "plain", t_end)),
+            ("incompressible", (n_inc, "none", "log", ctx.runs_dir / "incompressible", t_end, True))]
     table_jobs = [(n, s, p, K_REDUCED) for n in levels for s in ("mpm", "gimp", "cpdi") for p in ("none", "cell")]
     k_jobs = [(n_fine, "cpdi", "cell", K) for K in (2e6, 2e7, 2e8)]
-    print(f"[{NAME}] {len(jobs)} real-K runs, then {len(table_jobs) + len(k_jobs)} reduced-K runs, "
-          "two at a time", flush=True)
-    big = parallel.pmap(_snap_run, [j[1] for j in jobs])
-    small = parallel.pmap(_table_run, table_jobs + k_jobs)
-    gated, off = big
-    if isinstance(gated, Exception):
-        raise RuntimeError(f"the gated real-K run failed: {gated}")
-    n_inc = 2 * n_fine
-    inc = _snap_run(n_inc, "none", "log", ctx.runs_dir / "incompressible", t_end, True)
+    print(f"[{NAME}] 2 real-K runs and the incompressible one, then {len(table_jobs) + len(k_jobs)} reduced-K "
+          "runs, side by side", flush=True)
+    # one map, the long runs first: the short ones fill the workers the long ones leave free
+    outs = parallel.pmap(_either_run, [(_snap_run, j[1]) for j in jobs]
+                         + [(_table_run, j) for j in table_jobs + k_jobs])
+    big, small = outs[:len(jobs)], outs[len(jobs):]
+    gated, off, inc = big
+    for (label, _), out in zip(jobs, big, strict=True):
+        if label != "off" and isinstance(out, Exception):
+            raise RuntimeError(f"the {label} run failed: {out}")
     for k in ("front_rms_dz", "front_time_shift", "front_rms_dz_shifted", "height_rms_dh", "volume_change"):
         res.metrics[f"incompressible_{k}"] = inc[k]
     res.metrics["volume_change"] = gated["volume_change"]

@@ -28,7 +28,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from harness import cases, paths, refdata, water
+from harness import cases, parallel, paths, refdata, water
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.runner import build
 
@@ -116,8 +116,11 @@ def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     ref = refdata.read(REF)
     h_inc = H_COARSE if ctx.quick else 0.01
-    inc = _run(cases.load(CASE, [f"grid.cell={h_inc}"]), True)
-    wc = _run(cases.load(CASE, [*WC_SETTINGS, f"grid.cell={H_COARSE}"]), False)
+    inc, wc = parallel.pmap(_run, [(cases.load(CASE, [f"grid.cell={h_inc}"]), True),
+                                   (cases.load(CASE, [*WC_SETTINGS, f"grid.cell={H_COARSE}"]), False)])
+    for label, r in (("incompressible", inc), ("weakly compressible", wc)):
+        if isinstance(r, Exception):
+            raise RuntimeError(f"the {label} run failed: {r}")
     for k, name in enumerate(SENSORS, start=1):
         for label, r in (("", inc), ("wc_", wc)):
             m = sensor_metrics(r["series"][:, 0], r["series"][:, k], ref["t_star"], ref[f"p{name}"])

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import cases, plots, runner, water
+from harness import cases, parallel, plots, runner, water
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "floating_block"
@@ -116,7 +116,10 @@ def measures(o: dict) -> dict:
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     t_end = 3.0 if ctx.quick else 4.0
-    runs = [simulate(rho, bottom, t_end) for rho, bottom in RUNS]
+    runs = parallel.pmap(simulate, [(rho, bottom, t_end) for rho, bottom in RUNS])
+    for (rho, _), o in zip(RUNS, runs, strict=True):
+        if isinstance(o, Exception):
+            raise RuntimeError(f"the rho_s = {rho:g} run failed: {o}")
     rows = []
     for o in runs:
         m = measures(o)

@@ -3,7 +3,8 @@
 mutmut mutates the modules named in pyproject's [tool.mutmut] only_mutate and runs, for each
 mutant, the tests that reach it. It runs in a scratch copy of the committed tree (with the
 built extension), never in the user's tree. The quick-verify tier (tests/test_verify_quick.py,
-minutes per run) is left out of mutmut's runs (pyproject: pytest_add_cli_args_test_selection),
+minutes per run) and the Dask tests (tests/test_parallel_dask.py, verify on clusters, a minute) are
+left out of mutmut's runs (pyproject: pytest_add_cli_args_test_selection),
 so the rate is that of the unit tests alone: a lower bound of what `make test` kills.
 """
 
