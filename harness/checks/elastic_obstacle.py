@@ -3,11 +3,13 @@ Idelsohn et al. 2008; FORMULAS 2.1) against five published solutions.
 
 cases/elastic_obstacle.toml, run twice: as one continuum (water and plate share the grid
 velocity field, each particle with its own material) and with Bardenhagen contact between
-the water and the plate (frictionless; the plate shares its field with its rigid anchor). The
+the water and the plate (frictionless; the plate shares its field with its rigid anchor), both
+with the weakly compressible water, and a third time with the incompressible water coupled to
+the plate as one continuum (no-slip; docs/fsi_incompressible.md). The
 probe is the horizontal displacement of the plate's top-left corner. The published curves
 scatter (peak 0.041-0.048 m at 0.23-0.25 s), so they are used as an envelope: the metric
 `tip_outside_envelope_rms` is the RMS distance of our curve outside the band they span,
-over 0.1 <= t <= 0.5 s. Both runs are gated.
+over 0.1 <= t <= 0.5 s. All three runs are gated the same, and drawn side by side.
 """
 
 from __future__ import annotations
@@ -23,12 +25,20 @@ from harness.problems import fsi
 NAME = "elastic_obstacle"
 REQUIREMENT = ("Water from a collapsing column bends the elastic obstacle like the published solutions: peak "
                "tip displacement in [0.035, 0.055] m at t in [0.20, 0.28] s and RMS distance outside the "
-               "published band <= 0.005 m, both as one continuum and with contact.")
+               "published band <= 0.005 m, as one continuum and with contact (weakly compressible water) and "
+               "with the incompressible water.")
 CASE = paths.CASES / "elastic_obstacle.toml"
 
 
-def _run(cell: float, contact: bool, out: Path):
-    case = cases.load(CASE, [f"grid.cell={cell}", f"contact.enabled={str(contact).lower()}"])
+INCOMPRESSIBLE = ("solver.fluid=incompressible", "solver.projection=none")
+LIMITATION = {"_incompressible": (
+    "with the incompressible water coupled as one continuum (no-slip) the plate stays bent after the peak "
+    "(0.041-0.043 m at 0.4-0.5 s at h = 4 mm, above the published band): RMS 0.0078 m at h = 4 mm, 0.0039 m at "
+    "8 mm (docs/fsi_incompressible.md)")}
+
+
+def _run(cell: float, contact: bool, out: Path, extra: tuple[str, ...] = ()):
+    case = cases.load(CASE, [f"grid.cell={cell}", f"contact.enabled={str(contact).lower()}", *extra])
     r = runner.run(case, out, progress=False)
     return {"t": r.series["t"], "tip": r.series["tip_dx"], "summary": r.summary}
 
@@ -36,13 +46,14 @@ def _run(cell: float, contact: bool, out: Path):
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     cell = 0.008 if ctx.quick else 0.004
-    variants = {"": False, "_contact": True}
-    outs = parallel.pmap(_run, [(cell, c, ctx.runs_dir / ("contact" if c else "continuum"))
-                                for c in variants.values()])
+    # suffix -> (contact, extra overrides, run directory, label)
+    variants = {"": (False, (), "continuum", "one continuum"), "_contact": (True, (), "contact", "contact"),
+                "_incompressible": (False, INCOMPRESSIBLE, "incompressible", "incompressible water, one continuum")}
+    outs = parallel.pmap(_run, [(cell, c, ctx.runs_dir / d, x) for c, x, d, _ in variants.values()])
     series = {}
-    for (suffix, contact), out in zip(variants.items(), outs, strict=True):
+    for (suffix, (_, _, _, label)), out in zip(variants.items(), outs, strict=True):
         if isinstance(out, Exception):
-            raise RuntimeError(f"the {'contact' if contact else 'single-continuum'} run failed: {out}")
+            raise RuntimeError(f"the {label} run failed: {out}")
         t, u = out["t"], out["tip"]
         i = int(np.argmax(u))
         res.metrics[f"tip_peak_dx{suffix}"] = float(u[i])
@@ -52,8 +63,7 @@ def run(ctx: CheckContext) -> CheckResult:
             Gate.at_least(f"tip_peak_dx{suffix}", u[i], 0.035), Gate.at_most(f"tip_peak_dx{suffix}", u[i], 0.055),
             Gate.at_least(f"tip_peak_time{suffix}", t[i], 0.20), Gate.at_most(f"tip_peak_time{suffix}", t[i], 0.28),
             Gate.at_most(f"tip_outside_envelope_rms{suffix}", res.metrics[f"tip_outside_envelope_rms{suffix}"],
-                         0.005)]
-        label = "contact" if contact else "one continuum"
+                         0.005, known_limitation=LIMITATION.get(suffix, ""))]
         series[f"CPDI, {label}"] = (t, u)
         s = out["summary"]
         res.notes.append(f"{label}: {s['particles']} particles, {s['steps']} steps, {s['wall_s']:.0f} s wall.")
@@ -73,7 +83,8 @@ def run(ctx: CheckContext) -> CheckResult:
     ax.set_xlim(0, 0.6)
     ax.set_title(f"Elastic obstacle, top-left corner (h = {cell * 1e3:g} mm)")
     ax.text(0.98, 0.03, f"outside-band RMS: {res.metrics['tip_outside_envelope_rms']:.4f} m (continuum), "
-            f"{res.metrics['tip_outside_envelope_rms_contact']:.4f} m (contact)", transform=ax.transAxes,
+            f"{res.metrics['tip_outside_envelope_rms_contact']:.4f} m (contact), "
+            f"{res.metrics['tip_outside_envelope_rms_incompressible']:.4f} m (incompressible)", transform=ax.transAxes,
             ha="right", fontsize=8, bbox=dict(boxstyle="round", fc="white", ec="0.7"))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2, loc="upper right")
