@@ -147,7 +147,7 @@ def run(ctx: CheckContext) -> CheckResult:
                       title="Floating block (incompressible water, h = 0.05 m, no damping)",
                       annotate="draft below the far-field surface; settled error: "
                                + ", ".join(f"rho_s {o['rho_s']:g} {measures(o)['draft_err'] * 100:.2f} % H"
-                                           for o in runs), legend_loc="upper left")
+                                           for o in runs), legend_loc="below")
     res.figures.append(fig)
     res.tables.append("| rho_s | d [m] | steps | draft error (centre, last half) / H | mean, last half / H "
                       "| final / H | max tilt [deg] | decay ratio | KE/(MgH) end | block KE/(M_b g H_b) "
