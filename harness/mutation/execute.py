@@ -24,7 +24,7 @@ from harness.mutation.generate import Mutant
 FAST_TESTS = [  # most specific first: with -x the first failure names the killing test
     "tests/test_constitutive.py", "tests/test_walls.py", "tests/test_log_strain.py",
     "tests/test_shape_functions.py", "tests/test_projection.py", "tests/test_incompressible.py",
-    "tests/test_incompressible_flow.py", "tests/test_fsi_incompressible.py",
+    "tests/test_incompressible_flow.py", "tests/test_fsi_incompressible.py", "tests/test_timers.py",
     "tests/test_objectivity.py", "tests/test_conservation.py", "tests/test_rigid_and_scaling.py",
     "tests/test_vibrating_bar.py", "tests/test_bad_input.py", "tests/test_incompressible_input.py",
     "tests/test_determinism.py", "tests/test_contact.py",
