@@ -136,7 +136,8 @@ def cmd_mutate(args) -> int:
     from harness.mutation import main as mutation
 
     return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
-                         resume=args.resume, only=args.only, report_only=args.report_only)
+                         resume=args.resume, only=args.only, report_only=args.report_only,
+                         ids=args.ids)
 
 
 def _add_cluster_args(p: argparse.ArgumentParser, what: str) -> None:
@@ -207,6 +208,9 @@ def parser() -> argparse.ArgumentParser:
     mu.add_argument("--fast-only", action="store_true", help="no full make test for the fast tier's survivors")
     mu.add_argument("--resume", metavar="DIR", help="continue an interrupted run in its report directory")
     mu.add_argument("--only", nargs="+", metavar="FILE", help="mutate only these files (fortran/src/x.f90)")
+    mu.add_argument("--ids", nargs="+", metavar="ID",
+                    help="run exactly these mutants (ids as in a report's mutants.json, e.g. cpdi_fsi:126:3d364ae9); "
+                         "with --only FILE, only those files are scanned; the report goes to <date>-<sha>-ids/")
     mu.add_argument("--report-only", action="store_true", help="with --resume: summarise the journal, run nothing")
     mu.set_defaults(func=cmd_mutate)
     return p

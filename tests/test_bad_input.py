@@ -1,10 +1,16 @@
 """Bad input at the API raises CpdiError naming the problem; the interpreter carries on."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from harness.solver import CpdiError, Simulation
 from tests.conftest import block_particles, make_sim
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 def good_parts():
@@ -133,6 +139,7 @@ def test_degenerate_or_inverted_domain_is_refused_naming_the_particle(r):
 
 
 @pytest.mark.parametrize("options, message", [
+    ({"cfl": 0.0}, "cfl"), ({"cfl": 1.0 + 1e-9}, "cfl"),
     ({"lcrit": 1.0 + 1e-9}, "lcrit"), ({"lcrit": 0.0}, "lcrit"), ({"flip": 1.0 + 1e-9}, "flip"),
     ({"damping": 1.0}, "damping"), ({"projection_stabilization": 1.0 + 1e-9}, "stabilisation"),
 ])
@@ -141,7 +148,7 @@ def test_option_bounds_are_refused(options, message):
     with pytest.raises(CpdiError, match=message):
         sim.set_options(**options)
     edge = {k: (1.0 if k != "damping" else 0.999) for k in options}  # the bound itself is allowed
-    if "lcrit" not in options or options["lcrit"] > 0:
+    if next(iter(options.values())) > 0:   # (the upper bound; at a lower bound of 0, 0 is the refused value)
         sim.set_options(**edge)
     sim.close()
 
@@ -153,3 +160,101 @@ def test_friction_must_be_finite():
         sim.set_bodies(np.ones(n, dtype=np.int32), contact=True, friction=np.inf)
     sim.set_bodies(np.ones(n, dtype=np.int32), contact=True, friction=1e300)
     sim.close()
+
+
+@pytest.mark.parametrize("gravity", [(-np.inf, 0.0), (0.0, np.inf)])
+def test_infinite_option_is_refused(gravity):
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    with pytest.raises(CpdiError, match="NaN or Inf"):
+        sim.set_options(gravity=gravity)
+    sim.close()
+
+
+def test_gimp_half_width_beyond_half_a_cell_is_refused():
+    """uGIMP needs 0 < half-width <= h/2 along each axis; a tilted domain's half-width along y
+    is |r1y| + |r2y| (here 0.04 + 0.02 > 0.05), though r2 alone stays within."""
+    parts = good_parts()
+    parts["r"] = parts["r"].copy()
+    parts["r"][4] = [0.02, 0.04, 0.0, 0.02]
+    sim = make_sim(parts, ncell=(10, 10), h=0.1, shape="gimp")
+    with pytest.raises(CpdiError, match="particle 5 has GIMP half-widths"):
+        sim.advance(0.01)
+    sim.close()
+
+
+def test_stress_that_overflows_is_reported_naming_the_particle():
+    """A finite, valid state whose stress is not finite: neo-Hookean F = diag(1e160, 1e-160)
+    (det F = 1) has b11 = 1e320 = Inf. Refreshing the stress reports it with the particle."""
+    parts = good_parts()
+    n = len(parts["x"])
+    sim = make_sim(parts, ncell=(10, 10), h=0.1, materials=[{"model": "neo_hookean", "density": 1000.0,
+                                                             "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+    F = np.tile([1.0, 0.0, 0.0, 1.0], (n, 1))
+    F[6] = [1e160, 0.0, 0.0, 1e-160]
+    sim.set_state(np.zeros((n, 2)), F, 0.0)
+    with pytest.raises(CpdiError, match="NaN or Inf in the stress or velocity of particle 7") as ei:
+        sim.stable_dt()
+    assert ei.value.kind == "nan"
+    sim.close()
+
+
+def test_speed_that_overflows_is_reported_naming_the_particle():
+    """A finite velocity whose magnitude overflows (1e200 m/s: |v|^2 = Inf) is a non-finite
+    signal speed: reported as such, not taken as a zero time step."""
+    parts = good_parts()
+    n = len(parts["x"])
+    sim = make_sim(parts, ncell=(10, 10), h=0.1)
+    v = np.zeros((n, 2))
+    v[6] = [1e200, 0.0]
+    sim.set_state(v, np.tile([1.0, 0.0, 0.0, 1.0], (n, 1)), 0.0)
+    with pytest.raises(CpdiError, match="NaN or Inf in the stress or velocity of particle 7"):
+        sim.stable_dt()
+    sim.close()
+
+
+def test_full_state_with_every_dimension_wrong_is_refused():
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    full = sim.get_full_state()
+    with pytest.raises(CpdiError, match="rows per particle"):
+        sim.set_full_state(full["particles"][:-1], full["scalars"][:-1])
+    sim.close()
+
+
+def test_incompressible_queries_refuse_bad_calls():
+    """The raw API: face velocities or cell pressures for (nx, ny) that are not the grid's (both
+    wrong), and the face-lattice transfer of a freed simulation, are errors, not reads out of
+    bounds."""
+    from harness.solver import _call
+
+    water = block_particles((0.0, 0.0), (0.4, 0.3), 0.05, 2, 1000.0)
+    sim = make_sim(water, ncell=(10, 10), h=0.05, walls=("slip", "slip", "slip", "open"), fluid="incompressible",
+                   materials=[{"model": "newtonian_fluid", "density": 1000.0, "bulk_modulus": 1.0, "viscosity": 0.0}],
+                   gravity=(0.0, -9.81))
+    sim.advance(0.01)
+    for query in ("cpdi_face_velocity", "cpdi_grid_pressure"):
+        with pytest.raises(CpdiError, match="cell counts"):
+            _call(query, sim._handle, 11, 12)
+    handle = sim._handle
+    sim.close()
+    with pytest.raises(CpdiError, match="freed"):
+        _call("cpdi_transfer_cycle", handle)
+
+
+@pytest.mark.parametrize("ncell", [(1, 33333330), (33333330, 1)])
+def test_grid_beyond_2e8_nodes_is_refused_before_any_allocation(ncell):
+    """(1 + 1 + 4) x (33333330 + 1 + 4) = 2.0000001e8 nodes (padding included): refused as input.
+    Run in a child process limited to 8 GB of address space, so that a check that let it pass
+    fails to allocate (20 GB) instead of filling the machine's memory."""
+    code = (
+        "import resource, sys\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))\n"
+        "from harness.solver import CpdiError, Simulation\n"
+        "sim = Simulation()\n"
+        "try:\n"
+        f"    sim.set_grid((0.0, 0.0), {ncell!r}, 1.0)\n"
+        "except CpdiError as e:\n"
+        "    print(e.kind, e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("input ") and "more than 2e8 nodes" in out.stdout, out.stdout

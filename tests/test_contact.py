@@ -91,31 +91,58 @@ def test_block_sticks_when_friction_exceeds_tan_theta():
     assert abs(a) < 0.05
 
 
-def drop_on_floor(contact):
-    """Two stiff blocks (two bodies) dropped 2.5 cells onto a slip floor."""
-    a = block_particles((0.2, 0.05), (0.4, 0.25), H, 2, 1000.0)
-    b = block_particles((0.6, 0.05), (0.8, 0.25), H, 2, 1000.0)
+WALL_SIDES = ("bottom", "right", "top", "left")
+
+
+def drop_on_floor(contact, wall="bottom", origin=(0.0, 0.0)):
+    """Two blocks of 5 x 5 cells (two bodies) dropped 2.5 cells onto a slip wall (the floor, or by
+    symmetry any other side: gravity towards it, the opposite side open), the grid's lower-left
+    corner at origin. Returns each block's closest domain corner's distance from that wall at 0.2
+    and 0.3 s."""
+    L = 20 * H   # the grid's depth across the wall (50 cells along it)
+
+    def place(s, n):   # wall frame (along, from the wall) to x, y
+        return {"bottom": (s, n), "top": (s, L - n), "left": (n, s), "right": (L - n, s)}[wall]
+
+    a = block_particles((0.2, 0.05), (0.3, 0.15), H, 2, 1000.0)
+    b = block_particles((0.6, 0.05), (0.7, 0.15), H, 2, 1000.0)
     parts = {k: np.concatenate([a[k], b[k]]) for k in a}
+    corner = np.asarray(origin)
+    parts["x"] = np.column_stack(place(parts["x"][:, 0], parts["x"][:, 1])) + corner
     body = np.r_[np.zeros(len(a["x"])), np.ones(len(b["x"]))].astype(int)
+    opposite = {"bottom": "top", "top": "bottom", "left": "right", "right": "left"}[wall]
+    walls = {side: "open" if side == opposite else "slip" for side in WALL_SIDES}
+    axis, sign = {"bottom": (1, -1.0), "top": (1, 1.0), "left": (0, -1.0), "right": (0, 1.0)}[wall]
+    gravity = np.zeros(2)
+    gravity[axis] = 9.81 * sign
     sim = Simulation()
-    sim.set_grid((0.0, 0.0), (50, 20), H, ("slip", "slip", "slip", "open"))
-    sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e7, "poisson_ratio": 0.3}])
+    sim.set_grid(tuple(corner), (50, 20) if axis == 1 else (20, 50), H, walls)
+    sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
     sim.set_particles(**parts)
     sim.set_bodies(body, contact=contact)
-    sim.set_options(shape="cpdi", gravity=(0.0, -9.81), cfl=0.3, flip=0.99)
+    sim.set_options(shape="cpdi", gravity=tuple(gravity), cfl=0.3, flip=0.99)
     lowest = []
-    for t in (0.3, 0.4, 0.5):  # landed at 0.1 s; after that the blocks only ring elastically
+    for t in (0.2, 0.3):  # landed at 0.1 s; after that the blocks only ring elastically
         sim.advance(t)
         s = sim.state()
-        bottom = s["x"][:, 1] - np.abs(s["r"][:, 1]) - np.abs(s["r"][:, 3])  # lowest corner of each domain
-        lowest.append([bottom[body == f].min() for f in (0, 1)])
+        reach = np.abs(s["r"][:, axis]) + np.abs(s["r"][:, 2 + axis])   # domain half-extent across the wall
+        y = s["x"][:, axis] - corner[axis]
+        gap = y - reach if sign < 0 else L - (y + reach)
+        lowest.append([gap[body == f].min() for f in (0, 1)])
     sim.close()
     return np.array(lowest)
 
 
-def test_walls_obey_the_contact_volume_constraint():
+# the grid's origin: at (0.3151, 0.1233) the computed positions of the wall nodes come out a
+# rounding error (1e-17 m) inside the floor and (1e-16 m) outside the right wall (this build's
+# arithmetic), which the wall treatment must not notice: where the grid sits is no physics
+@pytest.mark.parametrize("wall, origin", [("bottom", (0.0, 0.0))] + [(w, (0.3151, 0.1233)) for w in WALL_SIDES])
+def test_walls_obey_the_contact_volume_constraint(wall, origin):
     """With contact, a wall node holds a body only where the body fills the node's inside support
     (the bodies' own volume constraint), so falling bodies land on the floor itself. The old
-    rule (a wall node stops every field that reaches it) holds them about 0.9 cells above it."""
-    lowest = drop_on_floor(True)
+    rule (a wall node stops every field that reaches it) holds them about 0.9 cells above it.
+    Every wall alike (the same drop turned towards each side; measured 0.06 cells at each).
+    (Blocks of 5 x 5 cells and E = 1 MPa: 10 x 10 cells at 10 MPa, the first version on the
+    floor alone, rested 0.065-0.07 cells above it and took 8 times as long.)"""
+    lowest = drop_on_floor(True, wall, origin)
     assert np.all(np.abs(lowest) < 0.1 * H), f"each block must rest on the floor, not above it: {lowest / H} cells"

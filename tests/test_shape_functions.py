@@ -81,3 +81,22 @@ def test_gimp_reduces_to_mpm_weights_away_from_particle_edges():
     assert out["mpm"].keys() == out["gimp"].keys()
     for k, v in out["mpm"].items():
         assert abs(out["gimp"][k] - v) < 1e-5
+
+
+def test_cpdi_domains_are_carried_by_the_deformation(rng):
+    """CPDI's domain vectors are material lines: a state of deformation gradient F carries each
+    particle's reference vectors r0_k to r_k = F r0_k (tilted, sheared reference domains and
+    general F, so that no term of the product vanishes), and the domain areas scale by det F."""
+    parts = random_particles(rng, 50, "cpdi")
+    n = len(parts["x"])
+    sim = make_sim(parts, ncell=NCELL, h=H, shape="cpdi")
+    F = np.column_stack([rng.uniform(0.8, 1.2, n), rng.uniform(-0.3, 0.3, (n, 2)), rng.uniform(0.8, 1.2, n)])
+    sim.set_state(np.zeros((n, 2)), F, 0.0)
+    r = sim.state()["r"]
+    sim.close()
+    Fm = np.stack([F[:, [0, 2]], F[:, [1, 3]]], axis=1)   # (n, 2, 2) from [F11, F21, F12, F22]
+    r0 = parts["r"]
+    expect = np.column_stack([np.einsum("pij,pj->pi", Fm, r0[:, :2]), np.einsum("pij,pj->pi", Fm, r0[:, 2:])])
+    np.testing.assert_allclose(r, expect, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(r[:, 0] * r[:, 3] - r[:, 1] * r[:, 2],
+                               np.linalg.det(Fm) * (r0[:, 0] * r0[:, 3] - r0[:, 1] * r0[:, 2]), rtol=1e-12)

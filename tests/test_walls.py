@@ -66,3 +66,33 @@ def test_noslip_wall_removes_both_components(side):
 def test_open_side_imposes_nothing(side):
     vel, v, _, _ = one_step(side, "open")
     np.testing.assert_allclose(vel, np.tile(v, (len(vel), 1)), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["slip", "noslip", "open"])
+@pytest.mark.parametrize("side", SIDES)
+def test_particles_beyond_a_closed_wall_are_held_on_it_and_counted(side, kind):
+    """Impenetrability: a particle found beyond a closed wall (here the outer row of a block
+    placed 0.01 m past it, inside the grid's padding) is put back on the wall by the next step,
+    and the wall_clamps diagnostic counts the particles held in that step (8, then 0 once
+    they sit on the wall). An open side holds nothing."""
+    axis, sign = SIDES[side]
+    parts = block_particles((0.3, 0.3), (0.7, 0.7), H, 2, 1000.0)
+    parts["x"][:, axis] += sign * 0.335     # the outer row's centres 0.01 m past the wall
+    wall = 1.0 if sign > 0 else 0.0
+    beyond = sign * (parts["x"][:, axis] - wall) > 0
+    walls = ["open"] * 4
+    walls[list(SIDES).index(side)] = kind
+    sim = make_sim(parts, ncell=(N, N), h=H, walls=walls, gravity=(0.0, 0.0), shape="mpm", dt=1e-4,
+                   materials=[{"model": "newtonian_fluid", "density": 1000.0, "bulk_modulus": 1e3, "viscosity": 0.0}])
+    sim.advance(1e-4)
+    x, first = sim.state()["x"], sim.diagnostics()["wall_clamps"]
+    sim.advance(2e-4)
+    second = sim.diagnostics()["wall_clamps"]
+    sim.close()
+    assert beyond.sum() == 8   # the outer row
+    if kind == "open":
+        assert first == 0 and np.all(sign * (x[beyond, axis] - wall) > 0)
+    else:
+        np.testing.assert_array_equal(x[beyond, axis], wall)
+        assert np.all(sign * (x[:, axis] - wall) <= 0)
+        assert (first, second) == (beyond.sum(), 0)

@@ -1,11 +1,12 @@
 !> Fortran-only driver for `make memcheck`: a small water column with an elastic block in
-!> contact and the projection on, through the same API Python uses, plus the error paths.
+!> contact and the projection on, through the same API Python uses, plus the error paths; the
+!> same water column incompressible, with its face-velocity and cell-pressure queries.
 !> Built with -fsanitize=address and the debug flags; any invalid access or leak fails it.
 program memcheck_driver
   use, intrinsic :: iso_c_binding, only: c_int, c_double
   use cpdi_api
   implicit none
-  integer(c_int) :: h, ierr, nsteps, n, i, j, k, nb
+  integer(c_int) :: h, ierr, nsteps, n, i, j, k, nb, nw
   character(len=512) :: msg
   real(c_double) :: t, dx
   real(c_double), allocatable :: x(:, :), v(:, :), m(:), vol(:), r(:, :), xo(:, :), vo(:, :), f(:, :), s(:, :), &
@@ -15,6 +16,8 @@ program memcheck_driver
   integer :: failures
   integer(c_int) :: nprow, nscal
   real(c_double), allocatable :: ps(:, :), ss(:)
+  real(c_double), allocatable :: fu(:, :), fv(:, :), cp(:, :), cf(:, :), ft(:, :), vt(:, :)
+  integer(c_int), allocatable :: ck(:, :)
 
   failures = 0
   dx = 0.01_c_double
@@ -86,7 +89,41 @@ program memcheck_driver
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
   call cpdi_free(h, ierr, msg); call expect_ok('free')
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('freed handle')
-  deallocate (x, v, m, vol, r, mat, body, xo, vo, f, s, volo, ro)
+  ! the water column alone, incompressible: a few steps and the grid queries
+  nw = 160
+  call cpdi_new(h, ierr, msg); call expect_ok('new incompressible')
+  call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.01_c_double, [1, 1, 1, 0], &
+                     ierr, msg); call expect_ok('grid incompressible')
+  call cpdi_set_materials(h, 1, [2_c_int], props(:, 1:1), ierr, msg); call expect_ok('materials incompressible')
+  call cpdi_set_particles(h, nw, x(:, 1:nw), v(:, 1:nw), m(1:nw), vol(1:nw), r(:, 1:nw), mat(1:nw), ierr, msg)
+  call expect_ok('particles incompressible')
+  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 0_c_int], &
+                        [0.5_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
+                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options incompressible')
+  call cpdi_set_option(h, 'fluid', 1.0_c_double, ierr, msg); call expect_ok('fluid incompressible')
+  call cpdi_advance(h, 0.05_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible')
+  allocate (fu(41, 20), fv(40, 21), cp(40, 20), cf(40, 20), ck(40, 20))
+  call cpdi_face_velocity(h, 40, 20, fu, fv, ierr, msg); call expect_ok('face velocity')
+  call cpdi_grid_pressure(h, 40, 20, cp, cf, ck, ierr, msg); call expect_ok('grid pressure')
+  call cpdi_free(h, ierr, msg); call expect_ok('free incompressible')
+  ! a state whose signal speed is not finite (a speed that overflows), refused when it is
+  ! first prepared, in a run that never used the projection
+  call cpdi_new(h, ierr, msg); call expect_ok('new overflow')
+  call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.01_c_double, [1, 1, 1, 0], &
+                     ierr, msg); call expect_ok('grid overflow')
+  call cpdi_set_materials(h, 2, [2_c_int, 1_c_int], props, ierr, msg); call expect_ok('materials overflow')
+  call cpdi_set_particles(h, n, x(:, 1:n), v(:, 1:n), m(1:n), vol(1:n), r(:, 1:n), mat(1:n), ierr, msg)
+  call expect_ok('particles overflow')
+  allocate (vt(2, n), ft(4, n))
+  vt = 0.0_c_double
+  vt(1, n) = 1.0e200_c_double
+  do k = 1, n
+    ft(:, k) = [1.0_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double]
+  end do
+  call cpdi_set_state(h, n, vt, ft, 0.0_c_double, ierr, msg); call expect_ok('state overflow')
+  call cpdi_stable_dt(h, t, ierr, msg); call expect_error('speed that overflows')
+  call cpdi_free(h, ierr, msg); call expect_ok('free overflow')
+  deallocate (x, v, m, vol, r, mat, body, xo, vo, f, s, volo, ro, fu, fv, cp, cf, ck, vt, ft)
   print '(a,i0,a)', 'memcheck driver: ', failures, ' failures'
   if (failures > 0) call exit(1)
 

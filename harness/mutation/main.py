@@ -15,7 +15,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool = True, resume: str | None = None,
          fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None,
-         report_only: bool = False) -> int:
+         report_only: bool = False, ids: list[str] | None = None) -> int:
     rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "fortran", "tests"], cwd=REPO, capture_output=True,
@@ -24,13 +24,23 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
               f"committed tree {rev[:12]} (commit first to include them)", file=sys.stderr)
     files = only or generate.sources(REPO)
     every = {f: generate.file_mutants(_committed(rev), f) for f in files}
-    chosen = generate.sample(every, sample, seed)
-    meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed,
-            "sampling": f"stratified sample of {len(chosen)} of {sum(map(len, every.values()))} mutants over "
-                        f"{len(files)} files (share ~ sqrt of each file's count, at least 3, seed {seed})",
+    if ids:  # exactly these mutants (ids from a report's mutants.json), no sample
+        chosen = [m for f in files for m in every[f] if m.id in ids]
+        missing = sorted(set(ids) - {m.id for m in chosen})
+        if missing:
+            raise SystemExit(f"error: no such mutant at {rev[:12]}: {', '.join(missing)} (an id names "
+                             "file:line:hash of the mutated line; a changed source line changes it)")
+    else:
+        chosen = generate.sample(every, sample, seed)
+    sampling = (f"stratified sample of {len(chosen)} of {sum(map(len, every.values()))} mutants over {len(files)} "
+                f"files (share ~ sqrt of each file's count, at least 3, seed {seed})")
+    if ids:
+        sampling = f"the {len(chosen)} mutants asked for by id (--ids)"
+    meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed, "sampling": sampling,
             "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
                      + ("then the full make test for survivors" if full else "only")}
-    out = Path(resume) if resume else REPO / "reports" / "mutation" / f"{meta['date']}-{rev[:12]}"
+    name = f"{meta['date']}-{rev[:12]}" + ("-ids" if ids else "")   # an id run never mixes into a sample's report
+    out = Path(resume) if resume else REPO / "reports" / "mutation" / name
     out.mkdir(parents=True, exist_ok=True)
     print(f"mutate: {meta['sampling']}; report in {out}", file=sys.stderr)
     if report_only:  # summarise what the journal holds so far (an interrupted run), run nothing

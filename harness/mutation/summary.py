@@ -61,6 +61,10 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
     md += [f"| {f} | {c['mutants']} | {c['counted']} | {c['killed']} | {_pct(c['kill_rate'])} | "
            f"{_pct(c['killed_by_fast_tier'])} |" for f, c in sc["files"].items()]
     surv = [r for r in rows if r["verdict"] == "survived" and r["id"] not in eq]
+    wrong = [r for r in rows if r["id"] in eq and r["verdict"] in KILLED]
+    if wrong:   # a test told them apart: the mark is wrong (they are run through the fast tier only)
+        md += ["", f"**{len(wrong)} mutants marked equivalent were killed** (check their marks in "
+               "harness/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
     md += ["", f"## Survivors ({len(surv)})", ""]
     md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`" for r in surv]
     md += ["", "## Every mutant", "", "| mutant | rule | verdict | killed by | s |", "|---|---|---|---|---|"]
