@@ -24,19 +24,16 @@ cores (docs/fsi_incompressible.md has its measurement).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from harness import cases, parallel, plots, runner, water
+from harness import cases, parallel, paths, plots, runner, water
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "floating_block"
 REQUIREMENT = ("A 0.6 m x 0.2 m block (rho_s = 500 and 800) floats upright in the resting tank at Archimedes' "
                "draft s 0.2 m below the far-field surface (incompressible water, no damping): draft error <= 5 % "
                "of the block height (h = 0.05), tilt < 1 degree, the oscillation decays, final KE <= 1e-5 M g H.")
-REPO = Path(__file__).resolve().parents[2]
-CASE = REPO / "cases" / "floating_block.toml"
+CASE = paths.CASES / "floating_block.toml"
 RHO_W, G = 1000.0, 9.81
 HB, WB, XB, DEPTH = 0.2, 0.6, 0.95, 1.2   # block height, width, left edge; water depth
 FAR = 0.5                                  # far-field strips next to each wall [m]
