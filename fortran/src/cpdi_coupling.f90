@@ -5,10 +5,14 @@ module cpdi_coupling
   !! flux of its boundary through it. With w_f = V_s,f / h^2 (clamped to [0, 1]) the solid fraction
   !! of face f, m_f and u_s,f the solid's face mass and velocity, u_f the water's:
   !!
-  !! * phi_c = (1/4) sum_{f in faces(c)} w_f; cell c is water (CELL_FLUID) if phi_c < 1 and its water
-  !!   fill f_w >= (1 - phi_c) / 2 (f~ = f_w / (1 - phi_c) >= 1/2, kept in mc%fill for the
-  !!   ghost-fluid surface); cells away from any solid (phi = 0) keep the water-only rule (a water
-  !!   particle's centre, or f_w > 1/2). Every other cell is air (p = 0), the solid's inside too.
+  !! * phi_c = (1/4) sum_{f in faces(c)} w_f. Cell c is water (CELL_FLUID) if phi_c < PHI_MAX, its
+  !!   water fill f_w >= FILL_MIN and f_w + f_s >= 1/2, f_s the solid's cell fill (both spread
+  !!   bilinearly from the particles alike); away from any solid (phi = 0) the water-only rule
+  !!   holds (a water particle's centre, or f_w > 1/2). Every other cell is air (p = 0), the
+  !!   solid's inside too. (The survey's f_w >= (1 - phi) / 2 opened a cell of air in the void a
+  !!   sinking block leaves above it, and the water above fell into it at g; phi, from the faces'
+  !!   control volumes, is also blurred unlike f_w: f_w + phi - 1 is -1/16 to +1/16 along a resting
+  !!   block's faces, f_w + f_s - 1 is 0.)
   !! * C_c = h [ sum_f sigma_f (1 - w_f) u_f + g^x_c ubar^x_c + g^y_c ubar^y_c ], sigma = +1 on the
   !!   right and top faces, g^x_c = w(right) - w(left), ubar^x_c = the solid's velocity over the two
   !!   x faces, weighted by their solid mass (y alike): u . grad chi of the solid's indicator, its
@@ -28,6 +32,10 @@ module cpdi_coupling
   use cpdi_pressure, only: mac_t, surface_theta, CELL_FLUID, CELL_AIR, CELL_SOLID
   implicit none
   private
+
+  real(wp), parameter :: FILL_MIN = 1.0e-3_wp !! least water fill of a water cell next to a solid
+  real(wp), parameter :: PHI_MAX = 0.99_wp     !! cells more solid than this are the solid's inside (air)
+  real(wp), parameter :: DIAG_MIN = 1.0e-6_wp  !! a water cell whose weights sum below this is decoupled (p = 0)
 
   public :: cpl_fractions, cpl_classify, cpl_constraint, cpl_assemble, cpl_impulse
 
@@ -53,15 +61,26 @@ contains
     end do
   end subroutine cpl_fractions
 
-  subroutine cpl_classify(mc, fillw, phi)
+  subroutine cpl_classify(mc, fillw, phi, wu, wv, sfill)
     !! Water cells from the water's own fill. On entry mc%cell marks the cells holding a water
-    !! particle's centre (and walls, rigid cells); on exit: CELL_FLUID where phi < 1 and
-    !! f~ = fillw / (1 - phi) >= 1/2, or phi = 0 and a water centre lies inside (the water-only
-    !! rule), CELL_AIR elsewhere; mc%fill = f~ (the surface's fill, 0 in solid-filled cells).
+    !! particle's centre (and walls, rigid cells) and mc%fill is the cell fill of all particles;
+    !! on exit: sfill = the solid's fill (mc%fill - fillw), CELL_FLUID where phi < PHI_MAX, fillw >=
+    !! FILL_MIN and water and solid fill it to 1/2 or more (a cell the solid fills is water if any
+    !! water reaches it: it carries the pressure on the solid's boundary; a void left behind a
+    !! moving solid is not air but under-filled water, which the volume correction fills), or
+    !! phi = 0 and a water centre lies inside or fillw > 1/2 (the water-only rule); CELL_AIR
+    !! elsewhere (phi >= PHI_MAX: the solid's inside, where stray water would make a pocket of
+    !! water cells with no free face). Then one layer more: a cell filled to 1/2 or more with
+    !! phi < PHI_MAX but less water than FILL_MIN is water if it shares a face open to water
+    !! (w_f < 1) with a water cell (the liquid extended into the solid by a cell, as Batty et
+    !! al.'s level set is: the pressure on a solid boundary crossing the cell acts on it; a block
+    !! sinking out of its bottom cell row left that row air, its faces' water at p = 0 and the
+    !! water under it sucked up). mc%fill (all particles) places the ghost-fluid surface.
     type(mac_t), intent(inout) :: mc
-    real(wp), intent(in) :: fillw(:), phi(:)
+    real(wp), intent(in) :: fillw(:), phi(:), wu(:), wv(:)
+    real(wp), intent(inout) :: sfill(:)
+    integer(ik), parameter :: EXTENDED = -1
     integer(ik) :: i, j, c, n1
-    real(wp) :: ft
     logical :: centre
     n1 = mc%nn(1)
     do j = mc%lo(2), mc%hi(2)
@@ -69,19 +88,26 @@ contains
         c = i + (j - 1)*n1
         if (mc%cell(c) == CELL_SOLID) cycle
         centre = mc%cell(c) == CELL_FLUID
-        if (phi(c) < 1.0_wp) then
-          ft = fillw(c)/(1.0_wp - phi(c))
-        else
-          ft = 0.0_wp
-        end if
-        mc%fill(c) = ft
-        if (phi(c) < 1.0_wp .and. (ft >= 0.5_wp .or. (phi(c) == 0.0_wp .and. centre))) then
+        sfill(c) = max(mc%fill(c) - fillw(c), 0.0_wp)
+        if (phi(c) < PHI_MAX .and. ((mc%fill(c) >= 0.5_wp .and. fillw(c) >= FILL_MIN) .or. &
+                                    (phi(c) == 0.0_wp .and. (centre .or. fillw(c) > 0.5_wp)))) then
           mc%cell(c) = CELL_FLUID
         else
           mc%cell(c) = CELL_AIR
         end if
       end do
     end do
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_AIR .or. .not. (phi(c) < PHI_MAX .and. mc%fill(c) >= 0.5_wp)) cycle
+        if ((mc%cell(c - 1) == CELL_FLUID .and. wu(c) < 1.0_wp) .or. &
+            (mc%cell(c + 1) == CELL_FLUID .and. wu(c + 1) < 1.0_wp) .or. &
+            (mc%cell(c - n1) == CELL_FLUID .and. wv(c) < 1.0_wp) .or. &
+            (mc%cell(c + n1) == CELL_FLUID .and. wv(c + n1) < 1.0_wp)) mc%cell(c) = EXTENDED
+      end do
+    end do
+    where (mc%cell == EXTENDED) mc%cell = CELL_FLUID
   end subroutine cpl_classify
 
   pure logical function free(mc, cl, cr)
@@ -129,17 +155,17 @@ contains
     cf = cf*mc%h
   end function cell_flux
 
-  subroutine cpl_assemble(mc, dt, rho, wu, wv, usm, vsm, us, vs, mtol, solid, beta, fillw, phi)
+  subroutine cpl_assemble(mc, dt, rho, wu, wv, usm, vsm, us, vs, mtol, solid, beta, fillw, sfill)
     !! Matrix and right-hand side (rho / dt)(h^2 q - C(u*)) of the coupled pressure equation on the
     !! water cells (scaled as mac_assemble: water faces of weight 1 - w_f). solid = .false.: the
     !! water's part only, the solid held still (the volume correction's system). With beta > 0
-    !! (and fillw, phi) the target q = beta clamp(fillw + phi - 1, -1/2, 1/2) / dt: two-sided
+    !! (and fillw, sfill) the target q = beta clamp(fillw + sfill - 1, -1/2, 1/2) / dt: two-sided
     !! in cells with no air neighbour, over-filling only next to air.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho, mtol, beta
     real(wp), intent(in) :: wu(:), wv(:), usm(:), vsm(:), us(:), vs(:)
     logical, intent(in) :: solid
-    real(wp), intent(in), optional :: fillw(:), phi(:)
+    real(wp), intent(in), optional :: fillw(:), sfill(:)
     integer(ik) :: i, j, c, n1, nb(4), a
     real(wp) :: af(4), rh2, g, gn, mx, mxn, sx, qv, e
     logical :: air
@@ -206,13 +232,13 @@ contains
           end if
         end if
         qv = 0.0_wp
-        if (beta > 0.0_wp .and. present(fillw) .and. present(phi)) then
-          e = min(max(fillw(c) + phi(c) - 1.0_wp, -0.5_wp), 0.5_wp)
+        if (beta > 0.0_wp .and. present(fillw) .and. present(sfill)) then
+          e = min(max(fillw(c) + sfill(c) - 1.0_wp, -0.5_wp), 0.5_wp)
           if (air) e = max(e, 0.0_wp)
           qv = beta*e/dt
         end if
         mc%b(c) = (rho/dt)*(mc%h**2*qv - cell_flux(mc, c, mc%u, mc%v, wu, wv, usm, vsm, us, vs, mtol, solid))
-        if (.not. (mc%adiag(c) > 0.0_wp)) then   ! no free face: decoupled, p = 0
+        if (.not. (mc%adiag(c) > DIAG_MIN)) then   ! (almost) no free face: decoupled, p = 0
           mc%adiag(c) = 1.0_wp
           mc%b(c) = 0.0_wp
         end if

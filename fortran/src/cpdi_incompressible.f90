@@ -69,7 +69,8 @@ module cpdi_incompressible
     real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
     integer(ik) :: coupling = COUPLING_MIXTURE   !! how solids join the projection (cpdi_coupling for batty)
     real(wp), allocatable :: wu(:), wv(:)     !! batty: solid fractions of the faces
-    real(wp), allocatable :: phi(:)           !! batty: solid fraction of the cells
+    real(wp), allocatable :: phi(:)           !! batty: solid fraction of the cells (from the faces)
+    real(wp), allocatable :: sfill(:)         !! batty: the solid's cell fill (spread like fillw)
     real(wp), allocatable :: iu(:), iv(:)     !! batty: the pressure's impulse on the solid faces
   end type incomp_t
 
@@ -150,11 +151,12 @@ contains
       if (.not. realloc) realloc = size(ic%usm) /= g%nnodes
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
-                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv)
+                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
+                                           ic%sfill)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
                   ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
-                  ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), stat=m)
+                  ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -596,7 +598,7 @@ contains
       end do
     end do
     call cpl_fractions(ic%mc, ic%uvs, ic%vvs, ic%wu, ic%wv, ic%phi)
-    call cpl_classify(ic%mc, ic%fillw, ic%phi)
+    call cpl_classify(ic%mc, ic%fillw, ic%phi, ic%wu, ic%wv, ic%sfill)
   end subroutine batty_faces
 
   subroutine batty_to_solid(ic, g, nm, dt, mtol, dvx, dvy)
@@ -746,14 +748,14 @@ contains
     call swap(ic%mc%v, ic%mc%vc)
   contains
     subroutine batty_correction()
-      !! The water's packing error, fill_w + phi - 1 (clamped to +-1/2), undone at the water's
+      !! The packing error, fill_w + fill_s - 1 (clamped to +-1/2), undone at the water's
       !! rate with the solid held still: two-sided inside the water (a gap next to a solid fills),
       !! over-filling only next to air (the surface is not pulled down).
       call swap(ic%mc%u, ic%mc%uc)
       call swap(ic%mc%v, ic%mc%vc)
       dtc = max(dt, ic%dt_corr)
       call cpl_assemble(ic%mc, dtc, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .false., ic%beta, &
-                        ic%fillw, ic%phi)
+                        ic%fillw, ic%sfill)
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
       call toc(timers, 8, t0)
