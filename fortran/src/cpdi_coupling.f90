@@ -33,7 +33,8 @@ module cpdi_coupling
   implicit none
   private
 
-  real(wp), parameter :: FILL_MIN = 1.0e-3_wp !! least water fill of a water cell next to a solid
+  real(wp), parameter :: FILL_MIN = 0.05_wp   !! least water fill of a water cell next to a solid
+  real(wp), parameter :: G_MIN = 0.1_wp        !! least solid boundary (|g|) along a face the water extends across
   real(wp), parameter :: PHI_MAX = 0.99_wp     !! cells more solid than this are the solid's inside (air)
   real(wp), parameter :: DIAG_MIN = 1.0e-6_wp  !! a water cell whose weights sum below this is decoupled (p = 0)
 
@@ -72,7 +73,8 @@ contains
     !! elsewhere (phi >= PHI_MAX: the solid's inside, where stray water would make a pocket of
     !! water cells with no free face). Then one layer more: a cell filled to 1/2 or more with
     !! phi < PHI_MAX but less water than FILL_MIN is water if it shares a face open to water
-    !! (w_f < 1) with a water cell (the liquid extended into the solid by a cell, as Batty et
+    !! (w_f < 1) with a water cell, across which the solid's boundary lies (|g| > G_MIN along the
+    !! face's axis; not a block's side above its waterline) (the liquid extended into the solid by a cell, as Batty et
     !! al.'s level set is: the pressure on a solid boundary crossing the cell acts on it; a block
     !! sinking out of its bottom cell row left that row air, its faces' water at p = 0 and the
     !! water under it sucked up). mc%fill (all particles) places the ghost-fluid surface.
@@ -81,7 +83,7 @@ contains
     real(wp), intent(inout) :: sfill(:)
     integer(ik), parameter :: EXTENDED = -1
     integer(ik) :: i, j, c, n1
-    logical :: centre
+    logical :: centre, gx, gy
     n1 = mc%nn(1)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
@@ -101,10 +103,12 @@ contains
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
         if (mc%cell(c) /= CELL_AIR .or. .not. (phi(c) < PHI_MAX .and. mc%fill(c) >= 0.5_wp)) cycle
-        if ((mc%cell(c - 1) == CELL_FLUID .and. wu(c) < 1.0_wp) .or. &
-            (mc%cell(c + 1) == CELL_FLUID .and. wu(c + 1) < 1.0_wp) .or. &
-            (mc%cell(c - n1) == CELL_FLUID .and. wv(c) < 1.0_wp) .or. &
-            (mc%cell(c + n1) == CELL_FLUID .and. wv(c + n1) < 1.0_wp)) mc%cell(c) = EXTENDED
+        gx = abs(wu(c + 1) - wu(c)) > G_MIN
+        gy = abs(wv(c + n1) - wv(c)) > G_MIN
+        if ((gx .and. mc%cell(c - 1) == CELL_FLUID .and. wu(c) < 1.0_wp) .or. &
+            (gx .and. mc%cell(c + 1) == CELL_FLUID .and. wu(c + 1) < 1.0_wp) .or. &
+            (gy .and. mc%cell(c - n1) == CELL_FLUID .and. wv(c) < 1.0_wp) .or. &
+            (gy .and. mc%cell(c + n1) == CELL_FLUID .and. wv(c + n1) < 1.0_wp)) mc%cell(c) = EXTENDED
       end do
     end do
     where (mc%cell == EXTENDED) mc%cell = CELL_FLUID
