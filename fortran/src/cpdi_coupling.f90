@@ -35,6 +35,7 @@ module cpdi_coupling
 
   real(wp), parameter :: FILL_MIN = 0.05_wp   !! least water fill of a water cell next to a solid
   real(wp), parameter :: G_MIN = 0.1_wp        !! least solid boundary (|g|) along a face the water extends across
+  real(wp), parameter :: W_FULL = 0.9_wp       !! a face more solid than this is solid (w = 1): no water DOF of tiny mass
   real(wp), parameter :: PHI_MAX = 0.99_wp     !! cells more solid than this are the solid's inside (air)
   real(wp), parameter :: DIAG_MIN = 1.0e-6_wp  !! a water cell whose weights sum below this is decoupled (p = 0)
 
@@ -43,7 +44,10 @@ module cpdi_coupling
 contains
 
   subroutine cpl_fractions(mc, uvs, vvs, wu, wv, phi)
-    !! Solid fractions of the faces (wu, wv) and cells (phi; 0 outside the physical cells).
+    !! Solid fractions of the faces (wu, wv) and cells (phi; 0 outside the physical cells). A face
+    !! filled beyond W_FULL is full: its water share would be a degree of freedom of tiny mass,
+    !! which the energy minimisation drives fast (jets of 2-3 m/s along a sinking block's sides
+    !! inside its edge cells, and a burst of kinetic energy).
     type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: uvs(:), vvs(:)
     real(wp), intent(inout) :: wu(:), wv(:), phi(:)
@@ -53,6 +57,8 @@ contains
     a = 1.0_wp/mc%h**2
     wu = min(max(uvs*a, 0.0_wp), 1.0_wp)
     wv = min(max(vvs*a, 0.0_wp), 1.0_wp)
+    where (wu > W_FULL) wu = 1.0_wp
+    where (wv > W_FULL) wv = 1.0_wp
     phi = 0.0_wp
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
