@@ -102,8 +102,10 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig
+    logical :: rig, batty
+    batty = s%inc%coupling >= COUPLING_BATTY
     associate (g => s%g, p => s%p)
+      if (batty) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
       g%px = 0.0_wp
       g%py = 0.0_wp
@@ -128,6 +130,7 @@ contains
           g%py(k, 1) = g%py(k, 1) + wk*mp*p%v(2, ip)
           g%fx(k, 1) = g%fx(k, 1) - vol*(sig(1)*gxk + sig(3)*gyk) + wk*b(1)
           g%fy(k, 1) = g%fy(k, 1) - vol*(sig(3)*gxk + sig(2)*gyk) + wk*b(2)
+          if (batty) s%inc%svol(k) = s%inc%svol(k) + wk*vol
           if (rig) then
             g%mr(k, 1) = g%mr(k, 1) + wk*mp
             g%prx(k, 1) = g%prx(k, 1) + wk*mp*p%v(1, ip)
@@ -151,8 +154,17 @@ contains
         call impose_rigid(g, g%px, g%py)
         call impose_rigid(g, g%vx, g%vy)
       end if
-      call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
-      call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+      if (batty) then
+        ! the walls under the solid's volume constraint, as with contact: a solid reaching a wall
+        ! node's support is held only once it fills it (otherwise a sinking block is stopped, and
+        ! bounced elastically, a cell above the floor)
+        s%inc%vfull = s%fullness*g%h**2
+        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1), s%inc%svol, s%inc%vfull)
+        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1), s%inc%svol, s%inc%vfull)
+      else
+        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
+        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+      end if
     end associate
   end subroutine solid_p2g
 

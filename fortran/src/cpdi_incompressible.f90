@@ -73,6 +73,8 @@ module cpdi_incompressible
     real(wp), allocatable :: phi(:)           !! batty: solid fraction of the cells (from the faces)
     real(wp), allocatable :: sfill(:)         !! batty: the solid's cell fill (spread like fillw)
     real(wp), allocatable :: iu(:), iv(:)     !! batty: the pressure's impulse on the solid faces
+    real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
+    real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
   end type incomp_t
 
   public :: incomp_prepare, incomp_step, incomp_transfer_cycle
@@ -153,11 +155,12 @@ contains
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
                                            ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
-                                           ic%sfill)
+                                           ic%sfill, ic%svol)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
                   ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
-                  ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), stat=m)
+                  ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), &
+                  ic%svol(g%nnodes), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -640,7 +643,7 @@ contains
         end if
       end do
     end do
-    call grid_apply_walls(g, dvx, dvy)
+    call grid_apply_walls(g, dvx, dvy, ic%svol, ic%vfull)   ! the walls as in the solid's own step
     ! the face velocity changes I_f / m_f (solid_g2p gathers them with coupling = batty_faces)
     where (ic%usm > mtol)
       ic%us = ic%iu/ic%usm
