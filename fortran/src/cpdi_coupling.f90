@@ -5,14 +5,14 @@ module cpdi_coupling
   !! flux of its boundary through it. With w_f = V_s,f / h^2 (clamped to [0, 1]) the solid fraction
   !! of face f, m_f and u_s,f the solid's face mass and velocity, u_f the water's:
   !!
-  !! * phi_c = (1/4) sum_{f in faces(c)} w_f. Cell c is water (CELL_FLUID) if phi_c < PHI_MAX, its
-  !!   water fill f_w >= FILL_MIN and f_w + f_s >= 1/2, f_s the solid's cell fill (both spread
-  !!   bilinearly from the particles alike); away from any solid (phi = 0) the water-only rule
-  !!   holds (a water particle's centre, or f_w > 1/2). Every other cell is air (p = 0), the
-  !!   solid's inside too. (The survey's f_w >= (1 - phi) / 2 opened a cell of air in the void a
-  !!   sinking block leaves above it, and the water above fell into it at g; phi, from the faces'
-  !!   control volumes, is also blurred unlike f_w: f_w + phi - 1 is -1/16 to +1/16 along a resting
-  !!   block's faces, f_w + f_s - 1 is 0.)
+  !! * phi_c = (1/4) sum_{f in faces(c)} w_f. Water cells (cpl_classify) from the water's and the
+  !!   solid's cell fills f_w, f_s (both spread bilinearly from the particles alike): cells the
+  !!   solid fills less than half by f_w >= FILL_MIN and f_w + f_s >= 1/2, then the cells it fills
+  !!   more than half next to those across its boundary. Every other cell is air (p = 0), the
+  !!   solid's inside too. (The survey's rule f_w >= (1 - phi) / 2 is not used: phi, from the faces'
+  !!   control volumes, is blurred unlike f_w (f_w + phi - 1 is -1/16 to +1/16 along a resting
+  !!   block's faces, f_w + f_s - 1 is 0), and a void a moving block leaves is under-filled water,
+  !!   not air.)
   !! * C_c = h [ sum_f sigma_f (1 - w_f) u_f + g^x_c ubar^x_c + g^y_c ubar^y_c ], sigma = +1 on the
   !!   right and top faces, g^x_c = w(right) - w(left), ubar^x_c = the solid's velocity over the two
   !!   x faces, weighted by their solid mass (y alike): u . grad chi of the solid's indicator, its
@@ -70,20 +70,24 @@ contains
 
   subroutine cpl_classify(mc, fillw, phi, wu, wv, sfill)
     !! Water cells from the water's own fill. On entry mc%cell marks the cells holding a water
-    !! particle's centre (and walls, rigid cells) and mc%fill is the cell fill of all particles;
-    !! on exit: sfill = the solid's fill (mc%fill - fillw), CELL_FLUID where phi < PHI_MAX, fillw >=
-    !! FILL_MIN and water and solid fill it to 1/2 or more (a cell the solid fills is water if any
-    !! water reaches it: it carries the pressure on the solid's boundary; a void left behind a
-    !! moving solid is not air but under-filled water, which the volume correction fills), or
-    !! phi = 0 and a water centre lies inside or fillw > 1/2 (the water-only rule); CELL_AIR
-    !! elsewhere (phi >= PHI_MAX: the solid's inside, where stray water would make a pocket of
-    !! water cells with no free face). Then one layer more: a cell filled to 1/2 or more with
-    !! phi < PHI_MAX but less water than FILL_MIN is water if it shares a face open to water
-    !! (w_f < 1) with a water cell, across which the solid's boundary lies (|g| > G_MIN along the
-    !! face's axis; not a block's side above its waterline) (the liquid extended into the solid by a cell, as Batty et
-    !! al.'s level set is: the pressure on a solid boundary crossing the cell acts on it; a block
-    !! sinking out of its bottom cell row left that row air, its faces' water at p = 0 and the
-    !! water under it sucked up). mc%fill (all particles) places the ghost-fluid surface.
+    !! particle's centre (and walls, rigid cells) and mc%fill is the cell fill of all particles; on
+    !! exit sfill = the solid's fill (mc%fill - fillw) and, with phi < PHI_MAX throughout (beyond
+    !! it the solid's inside, where stray water would make a pocket of water cells with no free
+    !! face):
+    !! 1. a cell the solid fills less than half is water if fillw >= FILL_MIN and water and solid
+    !!    fill it to 1/2 or more (a void left behind a moving solid is under-filled water, which the
+    !!    volume correction fills, not air: air there let the water above a sinking block fall into
+    !!    it at g); with phi = 0 the water-only rule (a water particle's centre, or fillw > 1/2);
+    !! 2. a cell the solid fills half or more is water if it shares a face open to water (w_f < 1)
+    !!    with a cell of 1., along an axis on which the solid's boundary crosses it (|g| > G_MIN):
+    !!    the water reaches into the solid by a cell, as Batty et al.'s level set does, and the
+    !!    pressure on that boundary acts on it (a block's bottom row, left air as the block sank out
+    !!    of it, put the water's faces under it at p = 0 and sucked the water up). Not from water
+    !!    it touches through another solid cell, nor from stray water: a splash on an entering
+    !!    block's top corner made its edge cell water surrounded by air, whose constraint pulled in
+    !!    water at 10-30 m/s (-157 kPa) as the block moved away from it; nor a floating block's edge
+    !!    column above its waterline (no boundary across the face to the water below).
+    !! Every other cell is air (p = 0). mc%fill (all particles) places the ghost-fluid surface.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: fillw(:), phi(:), wu(:), wv(:)
     real(wp), intent(inout) :: sfill(:)
@@ -97,8 +101,9 @@ contains
         if (mc%cell(c) == CELL_SOLID) cycle
         centre = mc%cell(c) == CELL_FLUID
         sfill(c) = max(mc%fill(c) - fillw(c), 0.0_wp)
-        if (phi(c) < PHI_MAX .and. ((mc%fill(c) >= 0.5_wp .and. fillw(c) >= FILL_MIN) .or. &
-                                    (phi(c) == 0.0_wp .and. (centre .or. fillw(c) > 0.5_wp)))) then
+        if (phi(c) < PHI_MAX .and. sfill(c) < 0.5_wp .and. &
+            ((mc%fill(c) >= 0.5_wp .and. fillw(c) >= FILL_MIN) .or. &
+             (phi(c) == 0.0_wp .and. (centre .or. fillw(c) > 0.5_wp)))) then
           mc%cell(c) = CELL_FLUID
         else
           mc%cell(c) = CELL_AIR
@@ -108,7 +113,7 @@ contains
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
-        if (mc%cell(c) /= CELL_AIR .or. .not. (phi(c) < PHI_MAX .and. mc%fill(c) >= 0.5_wp)) cycle
+        if (mc%cell(c) /= CELL_AIR .or. .not. (phi(c) < PHI_MAX .and. sfill(c) >= 0.5_wp)) cycle
         gx = abs(wu(c + 1) - wu(c)) > G_MIN
         gy = abs(wv(c + n1) - wv(c)) > G_MIN
         if ((gx .and. mc%cell(c - 1) == CELL_FLUID .and. wu(c) < 1.0_wp) .or. &
