@@ -88,8 +88,12 @@ contains
     !!    water at 10-30 m/s (-157 kPa) as the block moved away from it; nor a floating block's edge
     !!    column above its waterline (no boundary across the face to the water below).
     !! Every other cell is air (p = 0). mc%fill (all particles) places the ghost-fluid surface.
+    !! A face between a water cell and a cell of air the solid fills half or more is closed
+    !! (w_f = 1): the water there touches the solid, not air (p = 0 across it drove the water
+    !! trapped under a landed block into the cells under it at 10-15 m/s).
     type(mac_t), intent(inout) :: mc
-    real(wp), intent(in) :: fillw(:), phi(:), wu(:), wv(:)
+    real(wp), intent(in) :: fillw(:), phi(:)
+    real(wp), intent(inout) :: wu(:), wv(:)
     real(wp), intent(inout) :: sfill(:)
     integer(ik), parameter :: EXTENDED = -1
     integer(ik) :: i, j, c, n1
@@ -123,6 +127,19 @@ contains
       end do
     end do
     where (mc%cell == EXTENDED) mc%cell = CELL_FLUID
+    do j = mc%lo(2), mc%hi(2) + 1
+      do i = mc%lo(1), mc%hi(1) + 1
+        c = i + (j - 1)*n1
+        if (closed(c - 1, c)) wu(c) = 1.0_wp
+        if (closed(c - n1, c)) wv(c) = 1.0_wp
+      end do
+    end do
+  contains
+    logical function closed(cl, cr)
+      integer(ik), intent(in) :: cl, cr
+      closed = (mc%cell(cl) == CELL_FLUID .and. mc%cell(cr) == CELL_AIR .and. sfill(cr) >= 0.5_wp) .or. &
+               (mc%cell(cr) == CELL_FLUID .and. mc%cell(cl) == CELL_AIR .and. sfill(cl) >= 0.5_wp)
+    end function closed
   end subroutine cpl_classify
 
   pure logical function free(mc, cl, cr)
