@@ -136,7 +136,7 @@ SCHEMA: dict[str, Key] = {
                                  default=0.5, check=in_range(0.0, 2.0)),
         "coupling": Key("choice", "incompressible water with solids: mixture (one continuum on the faces) or batty "
                                   "(water-only pressure cells, the solid's boundary flux; docs/fsi_incompressible.md)",
-                        choices=("mixture", "batty", "batty_faces"), default="mixture"),
+                        choices=("mixture", "batty"), default="mixture"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

@@ -24,7 +24,7 @@ KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
 TRANSFERS = {"flip": 0, "apic": 1}
-COUPLINGS = {"mixture": 0, "batty": 1, "batty_faces": 2}
+COUPLINGS = {"mixture": 0, "batty": 1}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",

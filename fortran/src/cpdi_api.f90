@@ -567,11 +567,7 @@ contains
       call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
                     'volume_correction must lie in [0, 2]; 0.1-1 is typical')
     case ('coupling')
-      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'coupling must be 0 (mixture), 1 (batty) or 2 (batty_faces)')
-      else
-        s%inc%coupling = nint(value, ik)
-      end if
+      call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
                   'cg_tolerance, cg_max_iterations, volume_correction or coupling')

@@ -103,7 +103,7 @@ contains
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
     logical :: rig, batty
-    batty = s%inc%coupling >= COUPLING_BATTY
+    batty = s%inc%coupling == COUPLING_BATTY
     associate (g => s%g, p => s%p)
       if (batty) s%inc%svol = 0.0_wp
       g%m = 0.0_wp

@@ -39,7 +39,6 @@ module cpdi_incompressible
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
-  integer(ik), parameter, public :: COUPLING_BATTY_FACES = 2  !! batty, the solid's velocity change from its faces
 
   type, public :: incomp_t
     !! Settings and work storage of the incompressible water model.
@@ -238,7 +237,7 @@ contains
     integer(ik) :: ip, a, k, i0, j0, i, j, n1
     real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av, vp
     logical :: solid, batty
-    batty = ic%coupled .and. ic%coupling >= COUPLING_BATTY
+    batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
       n1 = mc%nn(1)
       mc%um = 0.0_wp
@@ -474,7 +473,7 @@ contains
     call face_velocities(ic%mc, mtol)
     call toc(timers, 2, t0)
     if (ic%visc > 0.0_wp) call viscosity(ic%mc, dt*ic%visc/ic%rho, mtol)
-    batty = ic%coupled .and. ic%coupling >= COUPLING_BATTY
+    batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     if (batty) then
       call batty_faces(ic, nm, nvx, nvy, mtol)
     else if (ic%coupled) then
@@ -644,17 +643,6 @@ contains
       end do
     end do
     call grid_apply_walls(g, dvx, dvy, ic%svol, ic%vfull)   ! the walls as in the solid's own step
-    ! the face velocity changes I_f / m_f (solid_g2p gathers them with coupling = batty_faces)
-    where (ic%usm > mtol)
-      ic%us = ic%iu/ic%usm
-    elsewhere
-      ic%us = 0.0_wp
-    end where
-    where (ic%vsm > mtol)
-      ic%vs = ic%iv/ic%vsm
-    elsewhere
-      ic%vs = 0.0_wp
-    end where
     where (ic%wu >= 1.0_wp) ic%mc%uval = 0
     where (ic%wv >= 1.0_wp) ic%mc%vval = 0
   end subroutine batty_to_solid
@@ -728,7 +716,7 @@ contains
     ic%mc%uc = 0.0_wp
     ic%mc%vc = 0.0_wp
     if (ic%beta == 0.0_wp) return
-    if (ic%coupled .and. ic%coupling >= COUPLING_BATTY) then
+    if (ic%coupled .and. ic%coupling == COUPLING_BATTY) then
       call batty_correction()
       return
     end if
