@@ -134,6 +134,9 @@ SCHEMA: dict[str, Key] = {
                                  check=nonneg),
         "volume_correction": Key("float", "incompressible: an over-filled cell gets div v = beta (fill - 1) / dt",
                                  default=0.5, check=in_range(0.0, 2.0)),
+        "coupling": Key("choice", "incompressible water with solids: mixture (one continuum on the faces) or batty "
+                                  "(water-only pressure cells, the solid's boundary flux; docs/fsi_incompressible.md)",
+                        choices=("mixture", "batty"), default="mixture"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

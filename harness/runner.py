@@ -116,7 +116,8 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
                     cfl=s["cfl"], gravity=s["gravity"], damping=s["damping"], flip=s["flip"],
                     projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
                     transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
-                    cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"])
+                    cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
+                    coupling=s["coupling"])
     return sim, parts
 
 

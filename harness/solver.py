@@ -24,6 +24,7 @@ KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
 TRANSFERS = {"flip": 0, "apic": 1}
+COUPLINGS = {"mixture": 0, "batty": 1}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
@@ -214,11 +215,13 @@ class Simulation:
                     cfl: float = 0.3, gravity: Sequence[float] = (0.0, 0.0), damping: float = 0.0,
                     flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
                     fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
-                    cg_max_iterations: int = 0, volume_correction: float = 0.5) -> None:
+                    cg_max_iterations: int = 0, volume_correction: float = 0.5,
+                    coupling: str = "mixture") -> None:
         """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
         ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
         ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG
-        settings and ``volume_correction`` belong to it)."""
+        settings and ``volume_correction`` belong to it); ``coupling`` is how solids join that
+        water's projection (docs/fsi_incompressible.md)."""
         table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
                  ("kinematics", kinematics, KINEMATICS))
         codes = []
@@ -231,7 +234,8 @@ class Simulation:
         ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit,
                          projection_stabilization], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
-        for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS)):
+        for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS),
+                                    ("coupling", coupling, COUPLINGS)):
             if value not in allowed:
                 raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
             _call("cpdi_set_option", self._handle, key, float(allowed[value]))

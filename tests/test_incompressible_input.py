@@ -30,9 +30,11 @@ def test_hopeless_limit_can_be_raised():
 def test_incompressible_with_a_solid_needs_contact_off_and_a_water():
     # solids couple to the incompressible water as one continuum (issue 21, cpdi_fsi): the
     # Bardenhagen contact of the weakly compressible model is refused; without it the run is accepted
+    # (contact set here: the case file's own setting depends on its water model)
     case = cases.load(REPO / "cases" / "sinking_block.toml", ['solver.fluid="incompressible"',
                                                               'solver.projection="none"', "solver.t_end=0.001",
-                                                              "solver.output_every=0.001", "solver.series_every=0.001"])
+                                                              "solver.output_every=0.001", "solver.series_every=0.001",
+                                                              "contact.enabled=true"])
     with pytest.raises(CpdiError, match="contact is not available") as ei:
         runner.run(case, None, progress=False)
     assert ei.value.kind == "input"

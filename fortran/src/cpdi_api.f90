@@ -535,7 +535,8 @@ contains
     !! A solver option by name (options added after the positional iopt/ropt of
     !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
     !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
-    !! volume_correction (beta of the divergence target beta (fill - 1) / dt).
+    !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
+    !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -565,9 +566,11 @@ contains
     case ('volume_correction')
       call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
                     'volume_correction must lie in [0, 2]; 0.1-1 is typical')
+    case ('coupling')
+      call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations or volume_correction')
+                  'cg_tolerance, cg_max_iterations, volume_correction or coupling')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)

@@ -22,7 +22,7 @@ module cpdi_fsi
   use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
   use cpdi_materials, only: material_stresses
   use cpdi_kinematics, only: det2, map_domains
-  use cpdi_incompressible, only: incomp_step
+  use cpdi_incompressible, only: incomp_step, COUPLING_BATTY
   use cpdi_sim, only: sim_t
   use cpdi_grid_update, only: impose_rigid
   implicit none
@@ -102,8 +102,10 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig
+    logical :: rig, batty
+    batty = s%inc%coupling == COUPLING_BATTY
     associate (g => s%g, p => s%p)
+      if (batty) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
       g%px = 0.0_wp
       g%py = 0.0_wp
@@ -128,6 +130,7 @@ contains
           g%py(k, 1) = g%py(k, 1) + wk*mp*p%v(2, ip)
           g%fx(k, 1) = g%fx(k, 1) - vol*(sig(1)*gxk + sig(3)*gyk) + wk*b(1)
           g%fy(k, 1) = g%fy(k, 1) - vol*(sig(3)*gxk + sig(2)*gyk) + wk*b(2)
+          if (batty) s%inc%svol(k) = s%inc%svol(k) + wk*vol
           if (rig) then
             g%mr(k, 1) = g%mr(k, 1) + wk*mp
             g%prx(k, 1) = g%prx(k, 1) + wk*mp*p%v(1, ip)
@@ -151,8 +154,17 @@ contains
         call impose_rigid(g, g%px, g%py)
         call impose_rigid(g, g%vx, g%vy)
       end if
-      call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
-      call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+      if (batty) then
+        ! the walls under the solid's volume constraint, as with contact: a solid reaching a wall
+        ! node's support is held only once it fills it (otherwise a sinking block is stopped, and
+        ! bounced elastically, a cell above the floor)
+        s%inc%vfull = s%fullness*g%h**2
+        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1), s%inc%svol, s%inc%vfull)
+        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1), s%inc%svol, s%inc%vfull)
+      else
+        call grid_apply_walls(g, g%px(:, 1), g%py(:, 1))
+        call grid_apply_walls(g, g%vx(:, 1), g%vy(:, 1))
+      end if
     end associate
   end subroutine solid_p2g
 
@@ -165,9 +177,10 @@ contains
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, a, k, nclamp
     real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), dp(2), fs(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
-    logical :: closed(4)
+    logical :: closed(4), batty
     character(len=300) :: buf
     fl = s%opt%flip
+    batty = s%inc%coupling == COUPLING_BATTY
     xmin = s%g%origin
     xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
     closed = s%g%walls /= WALL_OPEN
@@ -197,15 +210,22 @@ contains
             l = l + [(g%vx(k, 1) + g%fx(k, 1))*gxk, (g%vy(k, 1) + g%fy(k, 1))*gxk, &
                      (g%vx(k, 1) + g%fx(k, 1))*gyk, (g%vy(k, 1) + g%fy(k, 1))*gyk]
           end do
-          dp = 0.0_wp   ! the projection's change, from the faces
-          do a = 1, shape_count(s%inc%shu, ip)
-            call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
-            dp(1) = dp(1) + wk*s%inc%us(k)
-          end do
-          do a = 1, shape_count(s%inc%shv, ip)
-            call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
-            dp(2) = dp(2) + wk*s%inc%vs(k)
-          end do
+          dp = 0.0_wp   ! the projection's change, from the faces (mixture) or the nodes (batty)
+          if (batty) then
+            do a = 1, shape_count(s%sh, ip)
+              call shape_slot(s%sh, ip, a, k, wk, gxk, gyk)
+              dp = dp + wk*[g%fx(k, 1), g%fy(k, 1)]
+            end do
+          else
+            do a = 1, shape_count(s%inc%shu, ip)
+              call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
+              dp(1) = dp(1) + wk*s%inc%us(k)
+            end do
+            do a = 1, shape_count(s%inc%shv, ip)
+              call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
+              dp(2) = dp(2) + wk*s%inc%vs(k)
+            end do
+          end if
           vn = vn + dp
           dv = dv + dp
           fs = fs + p%m(ip)*dp/dt

@@ -21,13 +21,14 @@ module cpdi_incompressible
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_ALLOC, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_SOLVE, &
                          CPDI_ERR_NAN
-  use cpdi_grid, only: grid_t, hold_on_walls, WALL_OPEN, GRID_PAD
+  use cpdi_grid, only: grid_t, hold_on_walls, grid_apply_walls, WALL_OPEN, GRID_PAD
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: NCHUNK, chunk_range
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
                            mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
+  use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse
   implicit none
   private
 
@@ -36,6 +37,8 @@ module cpdi_incompressible
   integer(ik), parameter, public :: TRANSFER_FLIP = 0   !! FLIP/PIC blend (the run's flip fraction)
   integer(ik), parameter, public :: TRANSFER_APIC = 1   !! affine particle-in-cell
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
+  integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
+  integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
 
   type, public :: incomp_t
     !! Settings and work storage of the incompressible water model.
@@ -64,6 +67,13 @@ module cpdi_incompressible
     real(wp) :: dt_corr = 0.0_wp       !! coupled: the water's own step, the volume correction's time scale
     real(wp) :: smax_w = 0.0_wp        !! coupled: the water's signal speed of the last step
     real(wp) :: fsolid(2) = 0.0_wp     !! force of the water on the solids in the last step [N/m] (cpdi_fsi)
+    integer(ik) :: coupling = COUPLING_MIXTURE   !! how solids join the projection (cpdi_coupling for batty)
+    real(wp), allocatable :: wu(:), wv(:)     !! batty: solid fractions of the faces
+    real(wp), allocatable :: phi(:)           !! batty: solid fraction of the cells (from the faces)
+    real(wp), allocatable :: sfill(:)         !! batty: the solid's cell fill (spread like fillw)
+    real(wp), allocatable :: iu(:), iv(:)     !! batty: the pressure's impulse on the solid faces
+    real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
+    real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
   end type incomp_t
 
   public :: incomp_prepare, incomp_step, incomp_transfer_cycle
@@ -143,10 +153,13 @@ contains
       if (.not. realloc) realloc = size(ic%usm) /= g%nnodes
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
-                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw)
+                                           ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
+                                           ic%sfill, ic%svol)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
-                  ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), stat=m)
+                  ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
+                  ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), &
+                  ic%svol(g%nnodes), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -223,7 +236,8 @@ contains
     logical, intent(in) :: apic
     integer(ik) :: ip, a, k, i0, j0, i, j, n1
     real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av, vp
-    logical :: solid
+    logical :: solid, batty
+    batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
       n1 = mc%nn(1)
       mc%um = 0.0_wp
@@ -261,8 +275,8 @@ contains
         s = (p%x(:, ip) - g%gorig)/g%h
         i = int(s(1)) + 1
         j = int(s(2)) + 1
-        if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2)) &
-          mc%cell(i + (j - 1)*n1) = CELL_FLUID
+        if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2) .and. &
+            .not. (solid .and. batty)) mc%cell(i + (j - 1)*n1) = CELL_FLUID
         f = s - 0.5_wp
         i0 = int(floor(f(1))) + 1
         j0 = int(floor(f(2))) + 1
@@ -279,12 +293,15 @@ contains
       end do
       ! a cell without a particle centre inside the water is still water: the particles'
       ! volume covers it (a pocket of p = 0 there would pull the water around it in)
+      ! (batty coupling: cpl_classify, from the water's own fill)
+      if (.not. batty) then
       do j = mc%lo(2), mc%hi(2)
         do i = mc%lo(1), mc%hi(1)
           k = i + (j - 1)*n1
           if (mc%fill(k) > 0.5_wp .and. mc%cell(k) /= CELL_SOLID) mc%cell(k) = CELL_FLUID
         end do
       end do
+      end if
       if (ic%coupled) call mark_rigid()
     end associate
   contains
@@ -443,7 +460,7 @@ contains
     real(wp), intent(out) :: smax
     type(status_t), intent(inout) :: st
     real(wp) :: mtol
-    logical :: converged
+    logical :: converged, batty
     character(len=400) :: buf
     integer(int64) :: t0
 
@@ -456,12 +473,21 @@ contains
     call face_velocities(ic%mc, mtol)
     call toc(timers, 2, t0)
     if (ic%visc > 0.0_wp) call viscosity(ic%mc, dt*ic%visc/ic%rho, mtol)
-    if (ic%coupled) call solid_to_faces(ic, nm, nvx, nvy, mtol)
+    batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
+    if (batty) then
+      call batty_faces(ic, nm, nvx, nvy, mtol)
+    else if (ic%coupled) then
+      call solid_to_faces(ic, nm, nvx, nvy, mtol)
+    end if
     diag(15) = 0.0_wp
-    call volume_correction(ic, dt, diag, converged, timers, t0)
+    call volume_correction(ic, dt, mtol, diag, converged, timers, t0)
     if (converged) then
       call mac_walls(ic%mc)
-      call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
+      if (batty) then
+        call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
+      else
+        call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
+      end if
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
       call toc(timers, 8, t0)
@@ -477,7 +503,11 @@ contains
       return
     end if
     call mac_project(ic%mc, dt, ic%rho)
-    if (ic%coupled) call faces_to_solid(ic, nm, mtol, dvx, dvy)
+    if (batty) then
+      call batty_to_solid(ic, g, nm, dt, mtol, dvx, dvy)
+    else if (ic%coupled) then
+      call faces_to_solid(ic, nm, mtol, dvx, dvy)
+    end if
     where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
       ic%mc%uo = ic%mc%u - ic%mc%uo
     elsewhere
@@ -543,6 +573,80 @@ contains
     end associate
   end subroutine solid_to_faces
 
+  subroutine batty_faces(ic, nm, nvx, nvy, mtol)
+    !! Coupling batty (cpdi_coupling): the solid's face velocities (us, vs: the nodal velocity
+    !! nvx, nvy of the face's two nodes, weighted by their mass nm), the face and cell solid
+    !! fractions and the water cells from the water's own fill. The water's faces keep the
+    !! water's velocity (coefficient 1).
+    type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in) :: nm(:), nvx(:), nvy(:), mtol
+    integer(ik) :: i, j, k, n1, kb
+    real(wp) :: wn
+    n1 = ic%mc%nn(1)
+    do j = 1, ic%mc%nn(2) - 1
+      do i = 1, n1 - 1
+        k = i + (j - 1)*n1
+        ic%us(k) = 0.0_wp
+        ic%vs(k) = 0.0_wp
+        if (ic%usm(k) > mtol) then   ! u face k: between nodes k and k + n1
+          kb = k + n1
+          wn = nm(k) + nm(kb)
+          if (wn > 0.0_wp) ic%us(k) = (nm(k)*nvx(k) + nm(kb)*nvx(kb))/wn
+        end if
+        if (ic%vsm(k) > mtol) then   ! v face k: between nodes k and k + 1
+          kb = k + 1
+          wn = nm(k) + nm(kb)
+          if (wn > 0.0_wp) ic%vs(k) = (nm(k)*nvy(k) + nm(kb)*nvy(kb))/wn
+        end if
+      end do
+    end do
+    call cpl_fractions(ic%mc, ic%uvs, ic%vvs, ic%wu, ic%wv, ic%phi)
+    call cpl_classify(ic%mc, ic%fillw, ic%phi, ic%wu, ic%wv, ic%sfill)
+  end subroutine batty_faces
+
+  subroutine batty_to_solid(ic, g, nm, dt, mtol, dvx, dvy)
+    !! Coupling batty, after the projection: the pressure's impulse on each free solid face goes
+    !! to the face's two nodes as momentum, in the shares their mass gave the face's velocity
+    !! (dv_n = I_f / (m_n + m_n')); dvx, dvy: the nodal velocity change. The water velocity of
+    !! faces inside the solid (w = 1) is not the water's: they are extrapolated like faces in air.
+    type(incomp_t), intent(inout) :: ic
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: nm(:), dt, mtol
+    real(wp), intent(inout) :: dvx(:), dvy(:)
+    integer(ik) :: i, j, k, n1, kb
+    real(wp) :: wn, d
+    n1 = ic%mc%nn(1)
+    call cpl_impulse(ic%mc, dt, ic%wu, ic%wv, ic%usm, ic%vsm, mtol, ic%iu, ic%iv)
+    dvx = 0.0_wp
+    dvy = 0.0_wp
+    do j = 1, ic%mc%nn(2) - 1
+      do i = 1, n1 - 1
+        k = i + (j - 1)*n1
+        if (ic%iu(k) /= 0.0_wp) then
+          kb = k + n1
+          wn = nm(k) + nm(kb)
+          if (wn > mtol) then
+            d = ic%iu(k)/wn
+            dvx(k) = dvx(k) + d
+            dvx(kb) = dvx(kb) + d
+          end if
+        end if
+        if (ic%iv(k) /= 0.0_wp) then
+          kb = k + 1
+          wn = nm(k) + nm(kb)
+          if (wn > mtol) then
+            d = ic%iv(k)/wn
+            dvy(k) = dvy(k) + d
+            dvy(kb) = dvy(kb) + d
+          end if
+        end if
+      end do
+    end do
+    call grid_apply_walls(g, dvx, dvy, ic%svol, ic%vfull)   ! the walls as in the solid's own step
+    where (ic%wu >= 1.0_wp) ic%mc%uval = 0
+    where (ic%wv >= 1.0_wp) ic%mc%vval = 0
+  end subroutine batty_to_solid
+
   subroutine faces_to_solid(ic, nm, mtol, dvx, dvy)
     !! After the projection: each solid face's velocity change (the shared face velocity minus
     !! the solid's own) goes back to its two nodes, averaged over a node's faces by solid face
@@ -596,14 +700,14 @@ contains
     end where
   end subroutine faces_to_solid
 
-  subroutine volume_correction(ic, dt, diag, converged, timers, t0)
+  subroutine volume_correction(ic, dt, mtol, diag, converged, timers, t0)
     !! The velocity field (uc, vc) whose divergence is beta (fill - 1) / dt in over-filled
     !! water cells and 0 elsewhere (a solve with the same operator and only that target). It
     !! moves the particles apart again but is not added to their velocities, so a packing
     !! error is undone without a force on the flow (a divergence target inside the physical
     !! solve measured a dam-break front 0.08-0.25 T ahead, growing with beta).
     type(incomp_t), intent(inout) :: ic
-    real(wp), intent(in) :: dt
+    real(wp), intent(in) :: dt, mtol
     real(wp), intent(inout) :: diag(:), timers(:)
     logical, intent(out) :: converged
     integer(int64), intent(inout) :: t0
@@ -612,6 +716,10 @@ contains
     ic%mc%uc = 0.0_wp
     ic%mc%vc = 0.0_wp
     if (ic%beta == 0.0_wp) return
+    if (ic%coupled .and. ic%coupling == COUPLING_BATTY) then
+      call batty_correction()
+      return
+    end if
     if (ic%coupled) then   ! the water's own over-filling only: a solid's volume is not packing
       if (.not. any(ic%fillw > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return
     else
@@ -641,6 +749,31 @@ contains
     end if
     call swap(ic%mc%u, ic%mc%uc)
     call swap(ic%mc%v, ic%mc%vc)
+  contains
+    subroutine batty_correction()
+      !! The packing error, fill_w + fill_s - 1 (clamped to +-1/2), undone at the water's
+      !! rate with the solid held still: two-sided inside the water (a gap next to a solid fills),
+      !! over-filling only next to air (the surface is not pulled down).
+      call swap(ic%mc%u, ic%mc%uc)
+      call swap(ic%mc%v, ic%mc%vc)
+      dtc = max(dt, ic%dt_corr)
+      call cpl_assemble(ic%mc, dtc, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .false., ic%beta, &
+                        ic%fillw, ic%sfill)
+      call toc(timers, 3, t0)
+      call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
+      call toc(timers, 8, t0)
+      diag(15) = real(ic%mc%iters, wp)
+      diag(17) = diag(17) + real(ic%mc%iters, wp)
+      if (converged) then
+        call mac_project(ic%mc, dtc, ic%rho)
+        where (ic%wu >= 1.0_wp) ic%mc%uval = 0   ! the solid's inside: no water velocity of its own
+        where (ic%wv >= 1.0_wp) ic%mc%vval = 0
+        call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
+        call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
+      end if
+      call swap(ic%mc%u, ic%mc%uc)
+      call swap(ic%mc%v, ic%mc%vc)
+    end subroutine batty_correction
   end subroutine volume_correction
 
   subroutine g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)

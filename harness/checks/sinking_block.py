@@ -1,7 +1,9 @@
 """Check `sinking_block`: the seed paper's section 3.2, a 0.3 m block (rho = 1100) dropped
 from 0.1 m above the free surface into a 2.5 m x 2 m tank (water depth 1.2 m, chosen:
-the seed does not give it). Water and block touch through frictionless Bardenhagen contact
-with the volume constraint, so the block falls freely until it reaches the water.
+the seed does not give it). The water model and the interface are the case file's: on the
+fsi-batty branch the incompressible water with coupling = "batty" (frictionless by construction;
+docs/fsi_incompressible.md), on main the weakly compressible water with frictionless Bardenhagen
+contact; either way the block falls freely until it reaches the water.
 
 - impact_velocity_error: the block's velocity at the instant it touches the water,
   relative to sqrt(2 g 0.1). The instant is the last series sample (every 2 ms) before the
