@@ -29,7 +29,7 @@ module cpdi_coupling
   !! Faces touching a wall or a rigid body's cell (CELL_SOLID) are not free: their velocities are
   !! the wall's, they receive no impulse.
   use cpdi_kinds, only: wp, ik
-  use cpdi_pressure, only: mac_t, surface_theta, CELL_FLUID, CELL_AIR, CELL_SOLID
+  use cpdi_pressure, only: mac_t, surface_theta, mac_clear_system, CELL_FLUID, CELL_AIR, CELL_SOLID
   implicit none
   private
 
@@ -203,18 +203,7 @@ contains
     logical :: air
     n1 = mc%nn(1)
     rh2 = rho*mc%h**2
-    mc%nfluid = 0
-    do j = mc%lo(2) - 1, mc%hi(2) + 1
-      do i = mc%lo(1) - 1, mc%hi(1) + 1
-        c = i + (j - 1)*n1
-        mc%adiag(c) = 0.0_wp
-        mc%ai(c) = 0.0_wp
-        mc%aj(c) = 0.0_wp
-        mc%b(c) = 0.0_wp
-        mc%pre(c) = 0.0_wp
-        if (mc%cell(c) /= CELL_FLUID) mc%p(c) = 0.0_wp
-      end do
-    end do
+    call mac_clear_system(mc)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1

@@ -57,7 +57,7 @@ module cpdi_pressure
     real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
   end type mac_t
 
-  public :: mac_alloc, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
+  public :: mac_alloc, mac_clear_system, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
             mac_extrapolate, mac_ghost_pressure, mac_apply
 
 contains
@@ -161,6 +161,26 @@ contains
     end if
   end function surface_theta
 
+  subroutine mac_clear_system(mc)
+    !! Zero the pressure system (matrix, right-hand side, preconditioner) on the cells and their
+    !! ghost ring, and the pressure outside the water; the assemblies fill it again.
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1
+    n1 = mc%nn(1)
+    mc%nfluid = 0
+    do j = mc%lo(2) - 1, mc%hi(2) + 1
+      do i = mc%lo(1) - 1, mc%hi(1) + 1
+        c = i + (j - 1)*n1
+        mc%adiag(c) = 0.0_wp
+        mc%ai(c) = 0.0_wp
+        mc%aj(c) = 0.0_wp
+        mc%b(c) = 0.0_wp
+        mc%pre(c) = 0.0_wp
+        if (mc%cell(c) /= CELL_FLUID) mc%p(c) = 0.0_wp
+      end do
+    end do
+  end subroutine mac_clear_system
+
   subroutine mac_assemble(mc, dt, rho, beta, qfill)
     !! Matrix (5-point, ghost-fluid surface) and right-hand side of the pressure equation
     !! A p = (rho h^2 / dt) (q - div u) on the water cells, from the face velocities u, v.
@@ -175,18 +195,7 @@ contains
     real(wp) :: scale, div, qv, af(4)
     n1 = mc%nn(1)
     scale = rho*mc%h**2/dt
-    mc%nfluid = 0
-    do j = mc%lo(2) - 1, mc%hi(2) + 1
-      do i = mc%lo(1) - 1, mc%hi(1) + 1
-        c = i + (j - 1)*n1
-        mc%adiag(c) = 0.0_wp
-        mc%ai(c) = 0.0_wp
-        mc%aj(c) = 0.0_wp
-        mc%b(c) = 0.0_wp
-        mc%pre(c) = 0.0_wp
-        if (mc%cell(c) /= CELL_FLUID) mc%p(c) = 0.0_wp
-      end do
-    end do
+    call mac_clear_system(mc)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
