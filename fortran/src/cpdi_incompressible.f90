@@ -743,7 +743,7 @@ contains
     diag(15) = real(ic%mc%iters, wp)
     diag(17) = diag(17) + real(ic%mc%iters, wp)
     if (converged) then
-      call mac_project(ic%mc, dtc, ic%rho)
+      call mac_project(ic%mc, dtc, ic%rho, still=.true.)
       call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
       call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
     end if
@@ -765,7 +765,7 @@ contains
       diag(15) = real(ic%mc%iters, wp)
       diag(17) = diag(17) + real(ic%mc%iters, wp)
       if (converged) then
-        call mac_project(ic%mc, dtc, ic%rho)
+        call mac_project(ic%mc, dtc, ic%rho, still=.true.)
         where (ic%wu >= 1.0_wp) ic%mc%uval = 0   ! the solid's inside: no water velocity of its own
         where (ic%wv >= 1.0_wp) ic%mc%vval = 0
         call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)

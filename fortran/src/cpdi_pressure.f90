@@ -367,15 +367,22 @@ contains
     end do
   end subroutine mac_solve
 
-  subroutine mac_project(mc, dt, rho)
+  subroutine mac_project(mc, dt, rho, still)
     !! u <- u - dt/rho grad p on every face next to water (ghost pressure across the
-    !! surface); faces next to a wall cell get the wall's zero normal velocity. Marks the
-    !! faces it set (uval, vval = 1); the others are left for mac_extrapolate.
+    !! surface); faces next to a wall cell get the wall's normal velocity (a rigid body's
+    !! cells their body's), or zero with still = .true. (a correction field: its solve held
+    !! every wall still, so a moving body's velocity is no part of it). Marks the faces it set
+    !! (uval, vval = 1); the others are left for mac_extrapolate.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho
+    logical, intent(in), optional :: still
     integer(ik) :: i, j, k, n1
-    real(wp) :: scale
+    real(wp) :: scale, wall
     n1 = mc%nn(1)
+    wall = 1.0_wp
+    if (present(still)) then
+      if (still) wall = 0.0_wp
+    end if
     scale = dt/(rho*mc%h)
     mc%uval = 0
     mc%vval = 0
@@ -405,7 +412,7 @@ contains
       sa = scale*a
       if (tl == CELL_SOLID .or. tr == CELL_SOLID) then
         if (tl /= tr) then   ! a wall face: the wall's (or rigid body's) normal velocity
-          w = merge(rv(cl), rv(cr), tl == CELL_SOLID)
+          w = wall*merge(rv(cl), rv(cr), tl == CELL_SOLID)
           val = 1
         end if
       else if (tl == CELL_FLUID .and. tr == CELL_FLUID) then
