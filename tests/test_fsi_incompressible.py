@@ -196,21 +196,23 @@ def test_volume_correction_lifts_over_packed_water_beside_a_solid():
     assert top > 0.33
 
 
-def test_volume_correction_is_idle_where_no_water_is_over_packed():
-    """A rigid block moving at (0.05, -0.1) m/s through sparse water (particle volumes 0.9 of
-    their spacing's: no cell is over-filled during the 0.05 s): the volume correction has no
-    packing to undo, so it moves nothing and does no work (correction_work exactly 0)."""
+def rigid_block_in_sparse_water(U, patch=False, **options):
+    """A rigid block 0.2 m square moving at U through water whose particle volumes are 0.9 of
+    their spacing's (no cell over-filled), with patch=True a patch packed to 1.3 in the far
+    top-right corner. Returns the prepared simulation, the initial positions and the number of
+    water particles."""
     d = H_CELL / 2
     xw = lattice((0.0, 0.0), (1.0, 0.5), d)
     xw = xw[~((xw[:, 0] > 0.4) & (xw[:, 0] < 0.6) & (xw[:, 1] > 0.1) & (xw[:, 1] < 0.3))]
     x = np.vstack([xw, lattice((0.4, 0.1), (0.6, 0.3), d)])
     n, nw = len(x), len(xw)
     vol = np.full(n, d * d)
-    vol[:nw] *= 0.9
+    vol[:nw] *= np.where(patch & (xw[:, 0] > 0.85) & (xw[:, 1] > 0.35), 1.3, 0.9)
     mat = np.r_[np.zeros(nw, int), np.ones(n - nw, int)]
-    U = (0.05, -0.1)
     v = np.zeros((n, 2))
     v[nw:] = U
+    if patch:
+        v[0] = (0.1, 0.0)   # one far water particle: the water's signal speed is the same at any U
     sim = Simulation()
     sim.set_grid((0.0, 0.0), (20, 20), H_CELL, {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"})
     sim.set_materials([{"model": "newtonian_fluid", "density": RHO, "bulk_modulus": 1.0, "viscosity": 0.0},
@@ -218,7 +220,15 @@ def test_volume_correction_is_idle_where_no_water_is_over_packed():
     sim.set_particles(x, v, np.where(mat == 0, RHO, 2000.0) * vol, vol, np.tile([d / 2, 0.0, 0.0, d / 2], (n, 1)),
                       mat)
     sim.set_bodies(mat)
-    sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible", cfl=0.5, flip=0.99)
+    sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible", cfl=0.5, flip=0.99, **options)
+    return sim, x, nw
+
+
+def test_volume_correction_is_idle_where_no_water_is_over_packed():
+    """A rigid block moving at (0.05, -0.1) m/s through sparse water (no cell is over-filled
+    during the 0.05 s): the volume correction has no packing to undo, so it moves nothing and
+    does no work (correction_work exactly 0)."""
+    sim, _, _ = rigid_block_in_sparse_water((0.05, -0.1))
     sim.advance(0.05)
     work, grid = sim.diagnostics()["correction_work"], sim.grid_pressure()
     sim.close()
@@ -227,35 +237,15 @@ def test_volume_correction_is_idle_where_no_water_is_over_packed():
 
 
 def correction_displacement(U, coupling):
-    """One step (0.02 s) of a rigid block moving at U through sparse water (particle volumes 0.9
-    of their spacing's) with a far over-packed patch (1.3, the top-right corner): the volume
+    """One step (0.02 s) of rigid_block_in_sparse_water with the packed patch: the volume
     correction's own displacement (beta 0.5 minus beta 0) of the water within a cell of the
-    block. One far water particle moves at 0.1 m/s in every run, so the water's signal speed,
-    and with it the correction's time scale, is the same whether the block moves or not."""
-    d = H_CELL / 2
-    xw = lattice((0.0, 0.0), (1.0, 0.5), d)
-    xw = xw[~((xw[:, 0] > 0.4) & (xw[:, 0] < 0.6) & (xw[:, 1] > 0.1) & (xw[:, 1] < 0.3))]
-    x = np.vstack([xw, lattice((0.4, 0.1), (0.6, 0.3), d)])
-    n, nw = len(x), len(xw)
-    vol = np.full(n, d * d)
-    vol[:nw] *= np.where((xw[:, 0] > 0.85) & (xw[:, 1] > 0.35), 1.3, 0.9)
-    mat = np.r_[np.zeros(nw, int), np.ones(n - nw, int)]
-    v = np.zeros((n, 2))
-    v[nw:] = U
-    v[0] = (0.1, 0.0)
-    near = (xw[:, 0] > 0.35) & (xw[:, 0] < 0.65) & (xw[:, 1] > 0.05) & (xw[:, 1] < 0.35)
+    block."""
     out = []
     for beta in (0.0, 0.5):
-        sim = Simulation()
-        sim.set_grid((0.0, 0.0), (20, 20), H_CELL, {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"})
-        sim.set_materials([{"model": "newtonian_fluid", "density": RHO, "bulk_modulus": 1.0, "viscosity": 0.0},
-                           {"model": "rigid", "density": 2000.0, "velocity": list(U)}])
-        sim.set_particles(x, v, np.where(mat == 0, RHO, 2000.0) * vol, vol,
-                          np.tile([d / 2, 0.0, 0.0, d / 2], (n, 1)), mat)
-        sim.set_bodies(mat)
-        sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible", cfl=0.5, flip=0.99,
-                        coupling=coupling, volume_correction=beta)
+        sim, x, nw = rigid_block_in_sparse_water(U, True, coupling=coupling, volume_correction=beta)
         sim.advance(0.02, max_steps=1)
+        xw = x[:nw]
+        near = (xw[:, 0] > 0.35) & (xw[:, 0] < 0.65) & (xw[:, 1] > 0.05) & (xw[:, 1] < 0.35)
         out.append(sim.state()["x"][:nw][near])
         sim.close()
     return out[1] - out[0]
