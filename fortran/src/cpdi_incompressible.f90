@@ -487,7 +487,6 @@ contains
         call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
-        if (ic%coupled) call solid_dilatation(ic, dt, mtol)
       end if
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
@@ -647,35 +646,6 @@ contains
     where (ic%wu >= 1.0_wp) ic%mc%uval = 0
     where (ic%wv >= 1.0_wp) ic%mc%vval = 0
   end subroutine batty_to_solid
-
-  subroutine solid_dilatation(ic, dt, mtol)
-    !! Mixture coupling: only the water is incompressible. A cell's volume flux is the rate of
-    !! change of the solid volume in it, fill_s D_s (fill_s = the solid's cell fill clamped to
-    !! [0, 1], D_s = the MAC divergence of the solid's own face velocities, where all four of
-    !! the cell's faces carry solid mass), so the projection leaves the solid's dilatation to its
-    !! elastic law instead of holding its volume (docs/fsi_incompressible.md, issue 21: a plate
-    !! with no water near it deformed and lost its free vibration under the constraint).
-    !! Target q = fill_s D_s joins the right-hand side, b = (rho h^2 / dt) (q - div u).
-    type(incomp_t), intent(inout) :: ic
-    real(wp), intent(in) :: dt, mtol
-    integer(ik) :: i, j, c, n1
-    real(wp) :: fs, ds
-    n1 = ic%mc%nn(1)
-    associate (mc => ic%mc)
-      do j = mc%lo(2), mc%hi(2)
-        do i = mc%lo(1), mc%hi(1)
-          c = i + (j - 1)*n1
-          if (mc%cell(c) /= CELL_FLUID) cycle
-          if (.not. (ic%usm(c) > mtol .and. ic%usm(c + 1) > mtol .and. ic%vsm(c) > mtol .and. &
-                     ic%vsm(c + n1) > mtol)) cycle
-          fs = min(1.0_wp, max(0.0_wp, mc%fill(c) - ic%fillw(c)))
-          if (fs <= 0.0_wp) cycle
-          ds = (ic%us(c + 1) - ic%us(c) + ic%vs(c + n1) - ic%vs(c))/mc%h
-          mc%b(c) = mc%b(c) + ic%rho*mc%h**2/dt*fs*ds
-        end do
-      end do
-    end associate
-  end subroutine solid_dilatation
 
   subroutine faces_to_solid(ic, nm, mtol, dvx, dvy)
     !! After the projection: each solid face's velocity change (the shared face velocity minus
