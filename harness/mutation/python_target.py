@@ -45,6 +45,12 @@ def main(jobs: int | None = None) -> int:
     if run.returncode != 0:
         print("error: mutmut run failed (its own message is above)", file=sys.stderr)
         return 1
+    return summarize(work, rev, env)
+
+
+def summarize(work: Path, rev: str, env: dict) -> int:
+    """The report from mutmut's results in the scratch copy `work` (of commit `rev`). A mutant no
+    test reaches ("no tests") counts as a survivor: nothing in the unit tests would catch it."""
     res = subprocess.run([str(work / ".venv" / "bin" / "mutmut"), "results", "--all", "true"], cwd=work, env=env,
                          capture_output=True, text=True).stdout
     per: dict[str, Counter] = defaultdict(Counter)
@@ -55,21 +61,23 @@ def main(jobs: int | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for module, c in sorted(per.items()):
-        counted = c["killed"] + c["survived"] + c["timeout"]
+        counted = c["killed"] + c["survived"] + c["timeout"] + c["no tests"]
         rows.append({"module": module, **c, "kill_rate": (c["killed"] + c["timeout"]) / counted if counted else None})
     tot = sum((Counter(per[m]) for m in per), Counter())
-    counted = tot["killed"] + tot["survived"] + tot["timeout"]
+    counted = tot["killed"] + tot["survived"] + tot["timeout"] + tot["no tests"]
     rate = (tot["killed"] + tot["timeout"]) / counted if counted else float("nan")
     (out / "python.json").write_text(json.dumps({"rev": rev, "modules": rows, "total": dict(tot),
                                                  "kill_rate": rate}, indent=1) + "\n")
     md = [f"# Mutation testing of the harness (mutmut, {rev[:12]})", "",
-          f"**Kill rate {100 * rate:.1f} %** of {counted} mutants (unit tests; the quick-verify tier is left out).",
-          "", "| module | killed | survived | timeout | kill rate |", "|---|---|---|---|---|"]
+          f"**Kill rate {100 * rate:.1f} %** of {counted} mutants (unit tests; the quick-verify tier is left out; "
+          "a mutant no unit test reaches counts as surviving).",
+          "", "| module | killed | survived | no tests | timeout | kill rate |", "|---|---|---|---|---|---|"]
     for r in rows:
         pct = "n/a" if r["kill_rate"] is None else f"{100 * r['kill_rate']:.1f} %"
-        md.append(f"| {r['module']} | {r.get('killed', 0)} | {r.get('survived', 0)} | {r.get('timeout', 0)} | {pct} |")
+        md.append(f"| {r['module']} | {r.get('killed', 0)} | {r.get('survived', 0)} | {r.get('no tests', 0)} | "
+                  f"{r.get('timeout', 0)} | {pct} |")
     md += ["", "Survivors (mutmut show NAME in the scratch copy prints the diff):", "", "```",
-           *[ln.strip() for ln in res.splitlines() if ln.strip().endswith(": survived")], "```"]
+           *[ln.strip() for ln in res.splitlines() if ln.strip().endswith((": survived", ": no tests"))], "```"]
     (out / "python.md").write_text("\n".join(md) + "\n")
     print(f"mutate-harness: kill rate {100 * rate:.1f} % of {counted}; {out / 'python.md'}")
     return 0
