@@ -733,7 +733,7 @@ contains
       ! packing error is undone at the water's rate beta / (its own step), not beta per
       ! (tiny) step, which moved water ~ beta (fill - 1) h every step and lifted it (cpdi_fsi)
       dtc = max(dt, ic%dt_corr)
-      call mac_assemble(ic%mc, dtc, ic%rho, ic%beta, ic%fillw, ic%mc%fill)
+      call mac_assemble(ic%mc, dtc, ic%rho, ic%beta, ic%fillw)
     else
       call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
     end if

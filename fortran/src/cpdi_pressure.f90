@@ -181,15 +181,15 @@ contains
     end do
   end subroutine mac_clear_system
 
-  subroutine mac_assemble(mc, dt, rho, beta, qfill, lfill)
+  subroutine mac_assemble(mc, dt, rho, beta, qfill)
     !! Matrix (5-point, ghost-fluid surface) and right-hand side of the pressure equation
     !! A p = (rho h^2 / dt) (q - div u) on the water cells, from the face velocities u, v.
     !! Each face enters with its coefficient ua, va = rho / rho_face (1 on water faces; a
     !! face shared with a solid has the mixture's density, cpdi_incompressible).
     !! q = beta (f - 1) / dt where f > 1, f the cell fill, or qfill when given (coupled runs:
     !! the water's own fill, so the correction never pushes water off a solid).
-    !! lfill (coupled runs): also under-filled cells, q = beta max(lfill - 1, -1/2) / dt where
-    !! lfill < 1 in a water cell whose four neighbours are water cells, one of them over-filled
+    !! With qfill, also under-filled cells: q = beta max(f - 1, -1/2) / dt where the cell fill
+    !! f < 1 in a water cell whose four neighbours are water cells, one of them over-filled
     !! (qfill > 1): a packing error is a surplus next to a deficit, and the correction moves the
     !! surplus into the deficit instead of outward (two-sided inside the water, as Kugelstadt et
     !! al. 2019; the surface is not pulled in, uniformly sparse water is left alone). Over-filling
@@ -197,7 +197,7 @@ contains
     !! apart grew the water's volume by ~20 % in 0.5 s (elastic_obstacle, issue 21).
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho, beta
-    real(wp), intent(in), optional :: qfill(:), lfill(:)
+    real(wp), intent(in), optional :: qfill(:)
     integer(ik) :: i, j, c, n1, nb(4), a
     real(wp) :: scale, div, qv, af(4)
     n1 = mc%nn(1)
@@ -224,10 +224,8 @@ contains
         qv = 0.0_wp
         if (present(qfill)) then
           if (qfill(c) > 1.0_wp) qv = beta*(qfill(c) - 1.0_wp)/dt
-          if (present(lfill)) then
-            if (lfill(c) < 1.0_wp .and. all(mc%cell(nb) == CELL_FLUID) .and. any(qfill(nb) > 1.0_wp)) &
-              qv = beta*max(lfill(c) - 1.0_wp, -0.5_wp)/dt
-          end if
+          if (mc%fill(c) < 1.0_wp .and. all(mc%cell(nb) == CELL_FLUID) .and. any(qfill(nb) > 1.0_wp)) &
+            qv = beta*max(mc%fill(c) - 1.0_wp, -0.5_wp)/dt
         else
           if (mc%fill(c) > 1.0_wp) qv = beta*(mc%fill(c) - 1.0_wp)/dt
         end if
