@@ -99,6 +99,7 @@ contains
     integer(ik) :: i, j, c, n1
     logical :: centre, gx, gy
     n1 = mc%nn(1)
+    sfill = 0.0_wp   ! also beyond the physical cells: closed() reads it past an open side
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
