@@ -164,9 +164,9 @@ contains
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
         end if
-        ! defined from the start: a step reads some of these (faces and cells no solid or water
-        ! reached) before writing them, and memory fresh from malloc holds whatever the
-        ! previous user left (a run after another in the same process gave other results)
+        ! every entry defined from the start, as mac_alloc does for the pressure grid: memory
+        ! fresh from malloc holds what the process freed before (an unwritten sfill entry made a
+        ! run's result depend on the runs before it in the same process; cpl_classify)
         ic%usm = 0.0_wp; ic%vsm = 0.0_wp; ic%uvw = 0.0_wp; ic%vvw = 0.0_wp; ic%uvs = 0.0_wp; ic%vvs = 0.0_wp
         ic%us = 0.0_wp; ic%vs = 0.0_wp; ic%umx = 0.0_wp; ic%vmx = 0.0_wp; ic%nwx = 0.0_wp; ic%nwy = 0.0_wp
         ic%fillw = 0.0_wp; ic%wu = 0.0_wp; ic%wv = 0.0_wp; ic%phi = 0.0_wp; ic%iu = 0.0_wp; ic%iv = 0.0_wp
