@@ -33,7 +33,8 @@ module cpdi_projection
   use cpdi_grid, only: grid_t
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: SHAPE_MPM, SHAPE_GIMP
-  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range, blocks_t, block_start, block_next
+  use cpdi_schedule, only: strips_t, strips_alloc, strips_build, NCHUNK, chunk_range, blocks_t, block_start, &
+                           strip_start, block_next
   implicit none
   private
 
@@ -267,6 +268,7 @@ contains
     real(wp), intent(inout), optional :: mass(:)
     integer(ik) :: colour, b, c
     real(wp) :: wq
+    type(blocks_t) :: blk
     wq = 1.0_wp/real(pr%nq, wp)
     !$omp do schedule(static) private(c)
     do c = 1, size(acc)
@@ -282,8 +284,8 @@ contains
     end if
     !$omp barrier
     do colour = 1, 2
-      !$omp do schedule(dynamic, 1) private(b)
-      do b = colour, sp%nstrip, 2
+      call strip_start(blk, sp, colour)
+      do while (block_next(blk, b))
         if (present(mass)) then
           call scatter_strip_mass(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, &
                                   acc, mass)
@@ -291,7 +293,7 @@ contains
           call scatter_strip(sp%perm(sp%start(b):sp%start(b + 1) - 1), pr%nq, pr%qc, p%m, mask, wq, val, acc)
         end if
       end do
-      !$omp end do
+      !$omp barrier
     end do
     if (.not. present(mass)) return
     !$omp do schedule(static) private(c)

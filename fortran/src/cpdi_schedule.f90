@@ -23,7 +23,15 @@ module cpdi_schedule
   !!   so all even strips are scattered in parallel, then all odd strips (graph colouring
   !!   in two colours). Every node receives the contributions of at most one even and one
   !!   odd strip, each in particle-index order: the sums are bitwise the same at any
-  !!   thread count, with no atomics and no per-thread grid copies.
+  !!   thread count, with no atomics and no per-thread grid copies. The strips of a colour
+  !!   are handed out like blocks (`strip_start` / `block_next`): thread t owns the strips
+  !!   that begin in the t-th of nt equal parts of the strip-ordered particles, so with
+  !!   particles numbered row by row a thread scatters mostly the particles whose blocks it
+  !!   owns, and their shape functions stay in its core's cache. With `schedule(dynamic, 1)`
+  !!   about half of them were read by the other core every step, and its next shape phase
+  !!   had to take those cache lines back: at 32k CPDI the 2-thread step lost its speed-up
+  !!   (2T/1T 1.15 instead of 2.0) whenever the host put the two vCPUs where a cache-line
+  !!   round trip takes 345 ns instead of 55 ns (docs/notes/threads.md).
   !!
   !! The binning is a stable counting sort, O(n), with storage sized once. Horizontal
   !! strips keep particles seeded row by row (and nodes, numbered row by row) contiguous in
@@ -38,23 +46,27 @@ module cpdi_schedule
   integer(ik), parameter, public :: NCHUNK = 64   !! fixed particle blocks of a reduction
   integer, parameter, public :: MAX_THREADS = 256  !! most threads a step runs on (block tickets)
 
-  ! Block hand-out state (block_start, block_next). Module storage: the extension is not
-  ! thread-safe from Python (it holds the GIL), so one step runs at a time in a process.
-  ! claim(c): ticket of the loop that took block c; ticket(1, t): thread t's ticket of its
+  ! Block hand-out state (block_start, strip_start, block_next). Module storage: the
+  ! extension is not thread-safe from Python (it holds the GIL), so one step runs at a time
+  ! in a process. claim(i): ticket of the loop that took item i (a block, or the i-th strip
+  ! of a colour); sized by claims_reserve, serially. ticket(1, t): thread t's ticket of its
   ! current loop (one cache line per thread). Every thread of a region meets the same
   ! sequence of block loops, so their tickets agree once blocks_region and blocks_enter
   ! have set them to the same value at the start of the region.
-  integer(int64), save :: claim(NCHUNK) = 0
+  integer(int64), allocatable, save :: claim(:)
   integer(int64), save :: ticket(8, 0:MAX_THREADS - 1) = 0
   integer(int64), save :: gen = 0
 
   type, public :: blocks_t
-    !! One thread's iterator over the blocks of one loop (a local of the loop's routine,
-    !! hence private to the thread).
+    !! One thread's iterator over the items of one loop (a local of the loop's routine,
+    !! hence private to the thread): the NCHUNK blocks, or the strips of one colour. Item i
+    !! is block i, or strip first + 2 (i - 1).
     integer :: nt, tid, victim
     integer(ik) :: pos, hi
     logical :: stealing
     integer(int64) :: tk
+    integer(ik) :: first = 1, stride = 1
+    integer(ik) :: cut(0:MAX_THREADS) = 0   !! thread t owns items cut(t) + 1 .. cut(t + 1)
   end type blocks_t
 
   type, public :: strips_t
@@ -68,15 +80,27 @@ module cpdi_schedule
     integer(ik) :: cb(3, NCHUNK) = 0         !! per block: highest strip, lowest row, highest row
   end type strips_t
 
-  public :: strips_alloc, strips_build, chunk_range, blocks_region, blocks_enter, block_start, block_next
+  public :: strips_alloc, strips_build, chunk_range, blocks_region, blocks_enter, block_start, strip_start, block_next
 
 contains
 
   subroutine blocks_region()
     !! Before a parallel region that runs block loops (serial code): a ticket above every
     !! ticket used so far, for blocks_enter.
+    call claims_reserve(NCHUNK)
     gen = maxval(ticket(1, :)) + 1
   end subroutine blocks_region
+
+  subroutine claims_reserve(n)
+    !! Room for n items in one loop (serial code; grows, never shrinks).
+    integer(ik), intent(in) :: n
+    if (allocated(claim)) then
+      if (size(claim, kind=ik) >= n) return
+      deallocate (claim)
+    end if
+    allocate (claim(max(n, NCHUNK)))
+    claim = 0
+  end subroutine claims_reserve
 
   subroutine blocks_enter()
     !! First thing in such a region, on every thread: all threads start from the same ticket.
@@ -92,6 +116,53 @@ contains
     !!   call block_start(blk); do while (block_next(blk, c)); ...; end do; !$omp barrier
     !! Serially (outside a parallel region, or a team of one) the blocks run 1..NCHUNK.
     type(blocks_t), intent(out) :: it
+    integer :: t
+    call iter_begin(it)
+    do t = 0, it%nt
+      it%cut(t) = int(int(t, int64)*NCHUNK/it%nt, ik)
+    end do
+    call iter_own(it)
+  end subroutine block_start
+
+  subroutine strip_start(it, sp, colour)
+    !! Start a loop over the strips colour, colour + 2, ... of sp (colour 1 or 2), used as
+    !! block_start is: block_next then gives strip numbers. Thread t owns the strips whose
+    !! first particle lies in the t-th of nt equal parts of sp%perm (contiguous in the
+    !! strip order, so the threads' ranges follow each other as blocks do). Serially the
+    !! strips run in increasing order.
+    type(blocks_t), intent(out) :: it
+    type(strips_t), intent(in) :: sp
+    integer(ik), intent(in) :: colour
+    integer(ik) :: ni, ntot, lo, hi, mid
+    integer :: t
+    call iter_begin(it)
+    it%first = colour
+    it%stride = 2
+    ni = 0
+    if (sp%nstrip >= colour) ni = (sp%nstrip - colour)/2 + 1
+    ntot = 0
+    if (sp%nstrip > 0) ntot = sp%start(sp%nstrip + 1) - 1
+    it%cut(0) = 0
+    it%cut(it%nt) = ni
+    do t = 1, it%nt - 1   ! items whose first particle lies before t ntot / nt
+      lo = 0
+      hi = ni
+      do while (lo < hi)
+        mid = (lo + hi + 1)/2
+        if (int(sp%start(colour + 2*(mid - 1)) - 1, int64)*it%nt < int(t, int64)*ntot) then
+          lo = mid
+        else
+          hi = mid - 1
+        end if
+      end do
+      it%cut(t) = lo
+    end do
+    call iter_own(it)
+  end subroutine strip_start
+
+  subroutine iter_begin(it)
+    !! The team, this thread, and not yet stealing.
+    type(blocks_t), intent(out) :: it
     it%nt = 1
     it%tid = 0
     !$ it%nt = omp_get_num_threads()
@@ -99,36 +170,41 @@ contains
     it%stealing = .false.
     it%victim = it%tid
     it%tk = 0
+  end subroutine iter_begin
+
+  subroutine iter_own(it)
+    !! This loop's ticket and this thread's own range (a team of one runs every item).
+    type(blocks_t), intent(inout) :: it
     if (it%nt == 1) then
       it%pos = 0
-      it%hi = NCHUNK
+      it%hi = it%cut(1)
       return
     end if
     ticket(1, it%tid) = ticket(1, it%tid) + 1
     it%tk = ticket(1, it%tid)
-    it%pos = own_lo(it%tid, it%nt) - 1
-    it%hi = own_hi(it%tid, it%nt)
-  end subroutine block_start
+    it%pos = it%cut(it%tid)
+    it%hi = it%cut(it%tid + 1)
+  end subroutine iter_own
 
   logical function block_next(it, c)
-    !! The next block c for this thread: its own blocks in increasing order, then the
-    !! blocks still left in the other threads' ranges, each from its far end down to where
-    !! its owner got to. .false. when no block is left.
+    !! The next block (or strip) c for this thread: its own items in increasing order, then
+    !! the items still left in the other threads' ranges, each from its far end down to
+    !! where its owner got to. .false. when no item is left.
     type(blocks_t), intent(inout) :: it
     integer(ik), intent(out) :: c
     block_next = .false.
     c = 0
     if (it%nt == 1) then
       it%pos = it%pos + 1
-      c = it%pos
-      block_next = c <= NCHUNK
+      c = it%first + it%stride*(it%pos - 1)
+      block_next = it%pos <= it%hi
       return
     end if
     if (.not. it%stealing) then
       it%pos = it%pos + 1
       if (it%pos <= it%hi) then
         if (take(it%pos, it%tk)) then
-          c = it%pos
+          c = it%first + it%stride*(it%pos - 1)
           block_next = .true.
           return
         end if
@@ -137,14 +213,14 @@ contains
       it%pos = 0
     end if
     do
-      if (it%pos < own_lo(it%victim, it%nt)) then   ! the next thread's range, from its far end
+      if (it%pos <= it%cut(it%victim)) then   ! the next thread's range, from its far end
         it%victim = mod(it%victim + 1, it%nt)
         if (it%victim == it%tid) return
-        it%pos = own_hi(it%victim, it%nt)
+        it%pos = it%cut(it%victim + 1)
         cycle
       end if
       if (take(it%pos, it%tk)) then
-        c = it%pos
+        c = it%first + it%stride*(it%pos - 1)
         it%pos = it%pos - 1
         block_next = .true.
         return
@@ -165,18 +241,6 @@ contains
     take = old /= tk
   end function take
 
-  pure integer(ik) function own_lo(t, nt)
-    !! First block of thread t's range (of nt threads).
-    integer, intent(in) :: t, nt
-    own_lo = int(int(t, int64)*NCHUNK/nt, ik) + 1
-  end function own_lo
-
-  pure integer(ik) function own_hi(t, nt)
-    !! Last block of thread t's range (of nt threads; below own_lo if it owns none).
-    integer, intent(in) :: t, nt
-    own_hi = int(int(t + 1, int64)*NCHUNK/nt, ik)
-  end function own_hi
-
   pure subroutine chunk_range(c, n, lo, hi)
     !! Particles lo..hi of block c (1..NCHUNK) of n; empty (hi < lo) for small n.
     integer(ik), intent(in) :: c, n
@@ -193,7 +257,11 @@ contains
     integer :: ierr
     if (allocated(sp%perm)) deallocate (sp%perm, sp%start, sp%next)
     allocate (sp%perm(n), sp%start(nrow + 2), sp%next(nrow + 1, NCHUNK), stat=ierr)
-    if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate the particle ordering; use fewer particles')
+    if (ierr /= 0) then
+      call st%set(CPDI_ERR_ALLOC, 'could not allocate the particle ordering; use fewer particles')
+      return
+    end if
+    call claims_reserve(nrow/2 + 1)   ! strips of one colour
   end subroutine strips_alloc
 
   subroutine strips_build(sp, row, span)

@@ -8,7 +8,7 @@ module cpdi_transfer
   use cpdi_kinds, only: wp, ik
   use cpdi_grid, only: grid_apply_walls, hold_on_walls, WALL_OPEN
   use cpdi_shape, only: shape_t, shape_count, shape_slot
-  use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, block_next
+  use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
   use cpdi_grid_update, only: momentum_to_velocity, impose_rigid
   implicit none
@@ -25,6 +25,7 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: k, b, colour
     logical :: simple
+    type(blocks_t) :: blk
 
     !$omp do schedule(static) private(k)
     do k = s%kw(1), s%kw(2)
@@ -49,8 +50,8 @@ contains
     !$omp end single
     simple = s%g%nf == 1 .and. .not. s%any_rigid
     do colour = 1, 2
-      !$omp do schedule(dynamic, 1) private(b)
-      do b = colour, s%sp%nstrip, 2
+      call strip_start(blk, s%sp, colour)
+      do while (block_next(blk, b))
         if (simple) then
           call p2g_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
                                 s%sh%ovf, s%sh%idx, s%sh%w, s%sh%gx, s%sh%gy, s%sh%pidx, s%sh%pw, s%sh%pgx, &
@@ -60,7 +61,7 @@ contains
           call p2g_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
       end do
-      !$omp end do
+      !$omp barrier
     end do
   end subroutine p2g
 
@@ -420,8 +421,8 @@ contains
     end do
     !$omp end do
     do colour = 1, 2
-      !$omp do schedule(dynamic, 1) private(b)
-      do b = colour, s%sp%nstrip, 2
+      call strip_start(blk, s%sp, colour)
+      do while (block_next(blk, b))
         if (s%g%nf == 1) then
           call remap_strip_simple(s%sp%perm(s%sp%start(b):s%sp%start(b + 1) - 1), s%sh%nm, s%sh%ns - s%sh%nm, &
                                   s%sh%ovf, s%sh%idx, s%sh%w, s%sh%pidx, s%sh%pw, s%p%m, s%p%v, s%g%vx, s%g%vy)
@@ -429,7 +430,7 @@ contains
           call remap_strip(s, s%sp%start(b), s%sp%start(b + 1) - 1)
         end if
       end do
-      !$omp end do
+      !$omp barrier
     end do
     call momentum_to_velocity(s%g, s%mtol, s%kw, s%g%vx, s%g%vy)
     !$omp single
