@@ -6,7 +6,7 @@ module cpdi_transfer
   !! cpdi_incompressible.)
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
-  use cpdi_grid, only: grid_apply_walls, hold_on_walls, WALL_OPEN
+  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, hold_on_walls, WALL_OPEN
   use cpdi_shape, only: shape_t, shape_count, shape_slot
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
@@ -23,19 +23,11 @@ contains
     !! (and the mass gradient, for contact normals, when there are several fields), strip
     !! colour by colour (cpdi_schedule).
     type(sim_t), intent(inout) :: s
-    integer(ik) :: k, b, colour
+    integer(ik) :: b, colour
     logical :: simple
     type(blocks_t) :: blk
 
-    !$omp do schedule(static) private(k)
-    do k = s%kw(1), s%kw(2)
-      s%g%m(k, :) = 0.0_wp
-      s%g%px(k, :) = 0.0_wp
-      s%g%py(k, :) = 0.0_wp
-      s%g%fx(k, :) = 0.0_wp
-      s%g%fy(k, :) = 0.0_wp
-    end do
-    !$omp end do nowait
+    call grid_clear_p2g(s%g, s%kw(1), s%kw(2))
     !$omp single
     if (s%any_rigid) then
       s%g%mr = 0.0_wp
