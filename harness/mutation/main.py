@@ -39,6 +39,12 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed, "sampling": sampling,
             "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
                      + ("then the full make test for survivors" if full else "only")}
+    stale = summary.stale_marks({m.id for ms in every.values() for m in ms}, files)
+    if stale:
+        meta["stale_marks"] = stale
+        print(f"warning: {len(stale)} mark(s) in harness/mutation/equivalent.toml name no mutant at {rev[:12]} "
+              f"(a moved or edited line changes its id): {', '.join(stale)}; re-check and update them",
+              file=sys.stderr)
     name = f"{meta['date']}-{rev[:12]}" + ("-ids" if ids else "")   # an id run never mixes into a sample's report
     out = Path(resume) if resume else REPO / "reports" / "mutation" / name
     out.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,15 @@ EQUIVALENT = Path(__file__).with_name("equivalent.toml")
 KILLED = ("killed", "killed (time limit)")
 
 
+def stale_marks(generated: set[str], files: list[str], marks: dict[str, str] | None = None) -> list[str]:
+    """Marks (ids of equivalent.toml) of the given source files that name no mutant the sources
+    give now. An id holds the line number and a hash of the mutated line, so moving or editing
+    that line orphans its mark, and the mutant would then count as a survivor unnoticed."""
+    stems = {Path(f).stem for f in files}
+    marks = equivalent_ids() if marks is None else marks
+    return sorted(i for i in marks if i.split(":", 1)[0] in stems and i not in generated)
+
+
 def equivalent_ids() -> dict[str, str]:
     """Mutants marked equivalent by hand (reviewed), id -> reason."""
     if not EQUIVALENT.is_file():
@@ -65,6 +74,10 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
     if wrong:   # a test told them apart: the mark is wrong (they are run through the fast tier only)
         md += ["", f"**{len(wrong)} mutants marked equivalent were killed** (check their marks in "
                "harness/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
+    if meta.get("stale_marks"):
+        md += ["", f"**{len(meta['stale_marks'])} marks in harness/mutation/equivalent.toml name no mutant of "
+               "this revision** (their line moved or changed; re-check and update them): "
+               + ", ".join(f"`{i}`" for i in meta["stale_marks"])]
     md += ["", f"## Survivors ({len(surv)})", ""]
     md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`" for r in surv]
     md += ["", "## Every mutant", "", "| mutant | rule | verdict | killed by | s |", "|---|---|---|---|---|"]
