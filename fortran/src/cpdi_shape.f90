@@ -366,6 +366,8 @@ contains
       merged(l) = merged(l) .and. nout(l) == 0
       if (.not. merged(l)) cycle
       row(l) = bj(l)
+      span(l) = 2   ! the 3 x 3 block's rows bj..bj + 2 are all written (zero weights in the third
+                    ! when every corner lies in one cell row): the strips must be that tall
       k(:, l) = bi(l) + 1 + bj(l)*nn(1) + [0, 1, 2, nn(1), nn(1) + 1, nn(1) + 2, 2*nn(1), 2*nn(1) + 1, 2*nn(1) + 2]
       w(:, l) = bw(l, :)
       gx(:, l) = bx(l, :)

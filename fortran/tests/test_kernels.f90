@@ -4,7 +4,10 @@ program test_kernels
   !! (no STOP anywhere in fortran/): failures are counted and reported with `error`.
   use cpdi_kinds, only: wp, ik
   use cpdi_kinematics, only: log_strain, log_strain_lapack
-  use cpdi_shape, only: gimp_1d
+  use cpdi_shape, only: gimp_1d, shape_t, shape_alloc, shape_compute, SHAPE_CPDI, SHAPE_GIMP, SHAPE_MPM
+  use cpdi_grid, only: grid_t, grid_init, WALL_SLIP
+  use cpdi_particles, only: particles_t, particles_alloc
+  use cpdi_status, only: status_t
   implicit none
   integer :: nfail, i
   real(wp) :: F(4), e1(3), e2(3), s, ds, tot, h, lp, xp
@@ -54,6 +57,59 @@ program test_kernels
       end if
     end block
   end do
+  call stencils_within_strip_height(nfail)
   print '(a,i0,a)', 'fortran kernels: ', nfail, ' failures'
   if (nfail > 0) call exit(1)
+contains
+
+  subroutine stencils_within_strip_height(nfail)
+    !! The scatter colouring (cpdi_schedule) is race-free only if every node a particle's
+    !! stencil writes, zero weights included, lies in rows row .. row + span of the shape
+    !! functions' first row and tallest span: strips are span rows high, and same-colour
+    !! strips must touch disjoint rows. Checked for each interpolation on particles whose
+    !! domains each lie inside one cell row (CPDI corners in one row: the merged 3 x 3 block
+    !! still writes a third row of zeros) and on particles straddling rows.
+    integer, intent(inout) :: nfail
+    type(grid_t) :: g
+    type(particles_t) :: p
+    type(shape_t) :: sh
+    type(status_t) :: st
+    integer(ik) :: kinds(3), ik_, ip, a, rowk, bad, fail, np, j
+    real(wp) :: yoff(2)
+    integer :: t, worst
+    kinds = [SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI]
+    yoff = [0.5_wp, 1.0_wp]   ! domains centred in a cell row, or on a row boundary
+    call grid_init(g, [0.0_wp, 0.0_wp], [8_ik, 12_ik], 1.0_wp, [WALL_SLIP, WALL_SLIP, WALL_SLIP, WALL_SLIP], st)
+    np = 16
+    call particles_alloc(p, np, st)
+    do t = 1, 2
+      do ip = 1, np
+        j = (ip - 1)/2
+        p%x(:, ip) = [2.5_wp + real(mod(ip - 1, 2), wp)*2.0_wp, real(j, wp) + yoff(t)]
+        p%r0(:, ip) = [0.2_wp, 0.0_wp, 0.0_wp, 0.2_wp]
+        p%r(:, ip) = p%r0(:, ip)
+      end do
+      do ik_ = 1, 3
+        call shape_alloc(sh, kinds(ik_), np, st)
+        call shape_compute(g, p, sh, bad, fail, st)
+        if (.not. st%ok() .or. bad /= 0) then
+          nfail = nfail + 1
+          print '(a,i0)', 'FAIL stencil rows: shape_compute refused the particles, kind ', kinds(ik_)
+          cycle
+        end if
+        worst = 0
+        do ip = 1, np
+          do a = 1, size(sh%idx, 1)
+            rowk = (sh%idx(a, ip) - 1)/g%nn(1)
+            if (rowk < sh%row(ip) .or. rowk > sh%row(ip) + sh%span) worst = worst + 1
+          end do
+        end do
+        if (worst > 0) then
+          nfail = nfail + 1
+          print '(a,i0,a,i0,a,i0)', 'FAIL stencil rows: kind ', kinds(ik_), ': ', worst, &
+            ' slots write a node row beyond row + span, span = ', sh%span
+        end if
+      end do
+    end do
+  end subroutine stencils_within_strip_height
 end program test_kernels
