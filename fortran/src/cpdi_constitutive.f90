@@ -11,7 +11,7 @@ module cpdi_constitutive
   use cpdi_materials, only: material_stresses, MAT_FLUID
   use cpdi_kinematics, only: det2, map_domains
   use cpdi_projection, only: projection_apply, PROJ_NONE
-  use cpdi_sim, only: sim_t
+  use cpdi_sim, only: sim_t, all_ok
   implicit none
   private
 
@@ -268,7 +268,7 @@ contains
     type(blocks_t) :: blk
     real(wp) :: dm
     call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
-    if (.not. st%ok()) return
+    if (.not. all_ok(st)) return   ! a status set in a single: every thread must leave here
     call block_start(blk)
     do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
