@@ -35,6 +35,9 @@ module cpdi_sim
   !! tests set it to 1 so that their small cases really run on several threads.
   integer(ik), parameter, public :: PROBE_MIN = 32    !! steps between probes of the slower team ...
   integer(ik), parameter, public :: PROBE_MAX = 128   !! ... growing to this while probes confirm the choice
+  integer(ik), parameter, public :: PROBE_COST = 100  !! ... or further, to PROBE_COST (t_slow / t_fast - 1)
+  !! steps, so that a probe of a much slower team costs at most about 1 % of the run: a
+  !! 1-thread probe beside a 16-thread team costs some 15 of its steps, 12 % of 128 steps
   integer(ik), parameter, public :: NTIMER = 8
   !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
   !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),

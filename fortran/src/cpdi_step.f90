@@ -33,14 +33,15 @@ module cpdi_step
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
   use cpdi_fsi, only: fsi_prepare, fsi_step
-  use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX
+  use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
+                      PROBE_COST
   use cpdi_grid_update, only: node_range, grid_update
   use cpdi_transfer, only: p2g, g2p
   use cpdi_constitutive, only: deformation_update, projected_deformation, stress_update, project_mean_stress
   implicit none
   private
 
-  public :: sim_prepare, sim_step, sim_stable_dt
+  public :: sim_prepare, sim_step, sim_stable_dt, probe_cap
 
 contains
 
@@ -326,7 +327,7 @@ contains
     !! choice (nthr = 1). Threads never make a step slower: the wall time of a step is kept for
     !! both team sizes (an average over the last steps), the faster one runs, and a step now
     !! and then runs on the other to keep its time current: PROBE_MIN steps after the faster
-    !! team changed, and each probe that confirms the choice doubles the gap, up to PROBE_MAX
+    !! team changed, and each probe that confirms the choice doubles the gap, up to PROBE_MAX (probe_cap)
     !! (a probe costs a slow step: on the idle 2-core VM a 1-thread probe every 32 steps cost
     !! ~1.5-3 %). Beside a busy process a waiting thread's spin holds a core its partner needs,
     !! and 2 threads can take twice as long as 1; on an idle machine they take 0.5-0.65 of it
@@ -366,7 +367,7 @@ contains
     if (team < 0) then   ! a probe of team -team; the running team is 3 + team
       s%step_s(-team) = secs
       if (secs >= s%step_s(3 + team)) then
-        s%probe_gap = min(2*s%probe_gap, PROBE_MAX)
+        s%probe_gap = min(2*s%probe_gap, probe_cap(secs, s%step_s(3 + team)))
       else
         s%probe_gap = PROBE_MIN
       end if
@@ -378,6 +379,17 @@ contains
       s%step_s(team) = 0.75_wp*s%step_s(team) + 0.25_wp*secs
     end if
   end subroutine team_measured
+
+  pure integer(ik) function probe_cap(slow, fast)
+    !! Longest gap between probes of a team that takes slow s a step, the running one fast s:
+    !! PROBE_MAX, or PROBE_COST (slow / fast - 1) steps if longer (a probe then costs at most
+    !! about 1 / PROBE_COST of the steps between two probes).
+    real(wp), intent(in) :: slow, fast
+    real(wp) :: excess
+    excess = 1.0e6_wp
+    if (fast > 0.0_wp) excess = min(excess, real(PROBE_COST, wp)*(slow/fast - 1.0_wp))
+    probe_cap = max(PROBE_MAX, int(excess, ik))
+  end function probe_cap
 
   subroutine advance_clock(s, dt)
     !! The clock and step counter after a step of dt.

@@ -8,6 +8,8 @@ program test_kernels
   use cpdi_grid, only: grid_t, grid_init, WALL_SLIP
   use cpdi_particles, only: particles_t, particles_alloc
   use cpdi_status, only: status_t
+  use cpdi_step, only: probe_cap
+  use cpdi_sim, only: PROBE_MAX
   implicit none
   integer :: nfail, i
   real(wp) :: F(4), e1(3), e2(3), s, ds, tot, h, lp, xp
@@ -58,6 +60,17 @@ program test_kernels
     end block
   end do
   call stencils_within_strip_height(nfail)
+  ! a probe of the slower thread team (one step on it) costs (slow / fast - 1) steps of the
+  ! running team; between two probes at the longest gap that is at most about 1 % of the run
+  ! for any speed-up up to 64 threads, and the gap is never below PROBE_MAX
+  do i = 1, 640
+    tot = 1.0_wp + 0.1_wp*real(i, wp)   ! slow / fast
+    if ((tot - 1.0_wp)/real(probe_cap(tot, 1.0_wp), wp) > 0.0101_wp .or. probe_cap(tot, 1.0_wp) < PROBE_MAX) then
+      nfail = nfail + 1
+      print '(a,f8.2,a,i0)', 'FAIL probe cost: slow/fast ', tot, ' gap ', probe_cap(tot, 1.0_wp)
+      exit
+    end if
+  end do
   print '(a,i0,a)', 'fortran kernels: ', nfail, ' failures'
   if (nfail > 0) call exit(1)
 contains
