@@ -65,8 +65,8 @@ module cpdi_schedule
     integer(ik) :: pos, hi
     logical :: stealing
     integer(int64) :: tk
-    integer(ik) :: first = 1, stride = 1
-    integer(ik) :: cut(0:MAX_THREADS) = 0   !! thread t owns items cut(t) + 1 .. cut(t + 1)
+    integer(ik) :: first, stride
+    integer(ik) :: cut(0:MAX_THREADS)   !! thread t owns items cut(t) + 1 .. cut(t + 1) (set for t <= nt)
   end type blocks_t
 
   type, public :: strips_t
@@ -161,7 +161,8 @@ contains
   end subroutine strip_start
 
   subroutine iter_begin(it)
-    !! The team, this thread, and not yet stealing.
+    !! The team, this thread, not yet stealing, items 1, 2, ... (no default initialisation
+    !! in blocks_t: an iterator is a local of every loop, and cut need not be copied in).
     type(blocks_t), intent(out) :: it
     it%nt = 1
     it%tid = 0
@@ -170,6 +171,8 @@ contains
     it%stealing = .false.
     it%victim = it%tid
     it%tk = 0
+    it%first = 1
+    it%stride = 1
   end subroutine iter_begin
 
   subroutine iter_own(it)

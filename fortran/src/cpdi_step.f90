@@ -385,10 +385,8 @@ contains
     !! PROBE_MAX, or PROBE_COST (slow / fast - 1) steps if longer (a probe then costs at most
     !! about 1 / PROBE_COST of the steps between two probes).
     real(wp), intent(in) :: slow, fast
-    real(wp) :: excess
-    excess = 1.0e6_wp
-    if (fast > 0.0_wp) excess = min(excess, real(PROBE_COST, wp)*(slow/fast - 1.0_wp))
-    probe_cap = max(PROBE_MAX, int(excess, ik))
+    probe_cap = PROBE_MAX
+    if (fast > 0.0_wp) probe_cap = max(PROBE_MAX, int(min(1.0e6_wp, real(PROBE_COST, wp)*(slow/fast - 1.0_wp)), ik))
   end function probe_cap
 
   subroutine advance_clock(s, dt)

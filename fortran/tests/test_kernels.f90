@@ -87,7 +87,7 @@ contains
     type(particles_t) :: p
     type(shape_t) :: sh
     type(status_t) :: st
-    integer(ik) :: kinds(3), ik_, ip, a, rowk, bad, fail, np, j
+    integer(ik) :: kinds(3), kind_i, ip, a, rowk, bad, fail, np, j
     real(wp) :: yoff(2)
     integer :: t, worst
     kinds = [SHAPE_MPM, SHAPE_GIMP, SHAPE_CPDI]
@@ -102,12 +102,12 @@ contains
         p%r0(:, ip) = [0.2_wp, 0.0_wp, 0.0_wp, 0.2_wp]
         p%r(:, ip) = p%r0(:, ip)
       end do
-      do ik_ = 1, 3
-        call shape_alloc(sh, kinds(ik_), np, st)
+      do kind_i = 1, 3
+        call shape_alloc(sh, kinds(kind_i), np, st)
         call shape_compute(g, p, sh, bad, fail, st)
         if (.not. st%ok() .or. bad /= 0) then
           nfail = nfail + 1
-          print '(a,i0)', 'FAIL stencil rows: shape_compute refused the particles, kind ', kinds(ik_)
+          print '(a,i0)', 'FAIL stencil rows: shape_compute refused the particles, kind ', kinds(kind_i)
           cycle
         end if
         worst = 0
@@ -119,7 +119,7 @@ contains
         end do
         if (worst > 0) then
           nfail = nfail + 1
-          print '(a,i0,a,i0,a,i0)', 'FAIL stencil rows: kind ', kinds(ik_), ': ', worst, &
+          print '(a,i0,a,i0,a,i0)', 'FAIL stencil rows: kind ', kinds(kind_i), ': ', worst, &
             ' slots write a node row beyond row + span, span = ', sh%span
         end if
       end do
