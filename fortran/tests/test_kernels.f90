@@ -10,6 +10,7 @@ program test_kernels
   use cpdi_status, only: status_t
   use cpdi_step, only: probe_cap
   use cpdi_sim, only: PROBE_MAX
+  use cpdi_projection, only: projection_t, projection_alloc, projection_setup, PROJ_CELL
   implicit none
   integer :: nfail, i
   real(wp) :: F(4), e1(3), e2(3), s, ds, tot, h, lp, xp
@@ -60,6 +61,7 @@ program test_kernels
     end block
   end do
   call stencils_within_strip_height(nfail)
+  call quadrature_cells_within_strip_height(nfail)
   ! a probe of the slower thread team (one step on it) costs (slow / fast - 1) steps of the
   ! running team; between two probes at the longest gap that is at most about 1 % of the run
   ! for any speed-up up to 64 threads, and the gap is never below PROBE_MAX
@@ -125,4 +127,52 @@ contains
       end do
     end do
   end subroutine stencils_within_strip_height
+
+  subroutine quadrature_cells_within_strip_height(nfail)
+    !! The cell projection's scatter (its own strips, built by projection_setup) is race-free
+    !! only if every cell a particle's quadrature points fall in lies in cell rows
+    !! row .. row + width of its first row and the strips' height: same-colour strips must
+    !! touch disjoint rows. Checked on CPDI domains whose quadrature points span three cell
+    !! rows, two and one.
+    integer, intent(inout) :: nfail
+    type(grid_t) :: g
+    type(particles_t) :: p
+    type(projection_t) :: pr
+    type(status_t) :: st
+    logical, allocatable :: mask(:)
+    integer(ik) :: ip, q, np, rowq, worst
+    real(wp) :: ry(3)
+    integer :: t
+    ry = [1.2_wp, 0.6_wp, 0.2_wp]   ! half heights: quadrature points +-0.69, +-0.35, +-0.12 cells
+    call grid_init(g, [0.0_wp, 0.0_wp], [8_ik, 12_ik], 1.0_wp, [WALL_SLIP, WALL_SLIP, WALL_SLIP, WALL_SLIP], st)
+    np = 16
+    call particles_alloc(p, np, st)
+    allocate (mask(np), source=.true.)
+    do t = 1, 3
+      do ip = 1, np
+        p%x(:, ip) = [2.5_wp + real(mod(ip - 1, 2), wp)*2.0_wp, 2.5_wp + real((ip - 1)/2, wp)]
+        p%r0(:, ip) = [0.3_wp, 0.0_wp, 0.0_wp, ry(t)]
+        p%r(:, ip) = p%r0(:, ip)
+      end do
+      call projection_alloc(pr, g, np, st)
+      call projection_setup(pr, PROJ_CELL, SHAPE_CPDI, g, p, mask, st)
+      if (.not. st%ok()) then
+        nfail = nfail + 1
+        print '(a)', 'FAIL quadrature cell rows: projection_setup refused the particles'
+        return
+      end if
+      worst = 0
+      do ip = 1, np
+        do q = 1, pr%nq
+          rowq = (pr%qc(q, ip) - 1)/(g%nn(1) - 1)
+          if (rowq < pr%row(ip) .or. rowq > pr%row(ip) + pr%sp%width) worst = worst + 1
+        end do
+      end do
+      if (worst > 0) then
+        nfail = nfail + 1
+        print '(a,f5.2,a,i0,a,i0)', 'FAIL quadrature cell rows: half height ', ry(t), ': ', worst, &
+          ' quadrature points write a cell row beyond row + strip height ', pr%sp%width
+      end if
+    end do
+  end subroutine quadrature_cells_within_strip_height
 end program test_kernels
