@@ -95,7 +95,7 @@ class Worker:
         if code is None:
             return "timeout", "meson test (Fortran unit tests)", t1
         if code != 0:
-            return "fail", "meson test (Fortran unit tests: fortran/tests/test_kernels.f90)", t1
+            return "fail", meson_failure(self.dir / "build" / "meson-logs" / "testlog.json"), t1
         py = str(self.repo / ".venv" / "bin" / "python")
         present = [t for t in tests or [] if (self.dir / t).is_file()]
         cmd = [py, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-o", "addopts=-rfE", *present]
@@ -106,6 +106,21 @@ class Worker:
             return "pass", "", t1 + t2
         m = FAILED.search(out)
         return "fail", m.group(1) if m else f"pytest exit {code}", t1 + t2
+
+
+def meson_failure(log: Path) -> str:
+    """The first failing Fortran unit test and its first FAIL line (what broke), from meson's
+    testlog.json; `meson test` in general where the log cannot be read."""
+    try:
+        for line in log.read_text().splitlines():
+            t = json.loads(line)
+            if t.get("result") != "OK":
+                what = next((ln.strip() for ln in t.get("stdout", "").splitlines() if ln.startswith("FAIL")),
+                            f"{t.get('result', 'FAIL').lower()} (exit {t.get('returncode')})")
+                return f"meson test {t.get('name', '?')}: {what}"
+    except (OSError, ValueError):
+        pass
+    return "meson test (Fortran unit tests)"
 
 
 def journal_rows(journal: Path, mutants: list[Mutant]) -> list[dict]:
