@@ -75,7 +75,7 @@ build: $(EXT_STAMP)
 # ---------------------------------------------------------------- test / verify
 test: build
 	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson test -C $(BUILD) --print-errorlogs -q
-	@$(PY) -m pytest -q
+	@$(PY) -m pytest -q --durations=12
 
 verify: build
 	@$(PY) -m harness verify
