@@ -371,6 +371,16 @@ def threads(n: int = 0) -> int:
     return int(_call("cpdi_threads", n))
 
 
+def core_round_trip(iters: int = 20000) -> float:
+    """Mean wall time [ns] of one round trip of a cache line between two OpenMP threads of this
+    process (over iters trips): what moving data between the team's cores costs now. A control
+    of make bench. It always runs on 2 threads, whatever threads() says, and raises CpdiError where
+    OpenMP cannot start them (a build without OpenMP, OMP_THREAD_LIMIT=1)."""
+    if not isinstance(iters, int) or iters < 1:
+        raise CpdiError(1, f"iters must be a whole number >= 1, got {iters!r}")
+    return float(_call("cpdi_core_round_trip", iters))
+
+
 def log_strain(F, method: str = "closed") -> np.ndarray:
     """Plane-strain log strain 1/2 log(F F^T) of F (n,4) [F11, F21, F12, F22] -> (n,3) [e11, e22, e12]."""
     F = np.atleast_2d(np.asarray(F, dtype=np.float64))

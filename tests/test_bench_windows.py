@@ -1,7 +1,8 @@
 """The bench's 2-thread speed-up gate counts only windows in which a compute-bound control, taken
-before and after the timed runs, found two cores, and says INCONCLUSIVE, not PASS or FAIL, when
-too few did (harness.bench.speedup_windows and core_control; no solver runs and no timed busy
-loops: both are stubbed, only the smoke test starts real, tiny loops)."""
+before and after the timed runs, found two cores, and a cache-line round trip between them cost
+near the best the machine showed; it says INCONCLUSIVE, not PASS or FAIL, when too few did
+(harness.bench.speedup_windows, core_control and round_trip_control; no solver runs and no timed
+busy loops: they are stubbed, only the smoke tests start real, tiny loops and probes)."""
 
 from __future__ import annotations
 
@@ -14,24 +15,31 @@ from harness import bench
 
 
 class _Fake:
-    """Stub window: (control before, 1-thread rate, 2-thread rate, control after)."""
+    """Stub window: (control before, 1-thread rate, 2-thread rate, control after); round trips
+    [ns]: three at the start, then (before, after) per window (55 ns where not given)."""
 
-    def __init__(self, windows):
+    def __init__(self, windows, trips=None, start=(55.0, 55.0, 55.0)):
         self.values = itertools.chain.from_iterable(windows)
+        self.trips = itertools.chain(start, itertools.chain.from_iterable(trips or []), itertools.repeat(55.0))
         self.log = []
 
     def control(self):
         self.log.append("control")
         return next(self.values)
 
-    def run_one(self, size, shape, threads, repo=None):
-        self.log.append(f"run {threads}")
+    def round_trip(self):
+        self.log.append("trip")
+        return next(self.trips)
+
+    def run_one(self, size, shape, threads, repo=None, steps=None):
+        self.log.append(f"run {threads} ({steps} steps)")
         return {"particle_updates_per_s": next(self.values)}
 
 
-def _measure(monkeypatch, windows, need=3, most=5):
-    f = _Fake(windows)
+def _measure(monkeypatch, windows, need=3, most=5, trips=None, start=(55.0, 55.0, 55.0)):
+    f = _Fake(windows, trips, start)
     monkeypatch.setattr(bench, "core_control", f.control)
+    monkeypatch.setattr(bench, "round_trip_control", f.round_trip)
     monkeypatch.setattr(bench, "_run_one", f.run_one)
     return bench.speedup_windows("32k", lambda msg: None, need=need, most=most), f.log
 
@@ -48,9 +56,38 @@ def test_a_window_with_a_bad_control_before_or_after_does_not_count(monkeypatch)
     assert row["speedup_all_median"] == pytest.approx(1.9)
 
 
-def test_the_control_brackets_the_timed_runs(monkeypatch):
+def test_the_controls_bracket_the_timed_runs(monkeypatch):
     _, log = _measure(monkeypatch, [GOOD] * 3)
-    assert log == ["control", "run 1", "run 2", "control"] * 3   # stops at `need` counted windows
+    # three round trips set the machine's best, then each window; stops at `need` counted windows
+    run = [f"run {t} ({bench.WINDOW_STEPS['32k']} steps)" for t in (1, 2)]
+    assert log == ["trip"] * 3 + (["control", "trip"] + run + ["control", "trip"]) * 3
+
+
+def test_a_window_with_the_cores_far_apart_does_not_count_and_is_reported(monkeypatch):
+    # the host put the vCPUs where a round trip costs 345 ns, before or after the runs: the
+    # speed-up of those windows is kept and reported apart, not gated
+    row, _ = _measure(monkeypatch, [(2.0, 10, 16.0, 2.0)] * 2 + [GOOD] * 3,
+                      trips=[(345.0, 55.0), (55.0, 345.0)])
+    assert [w["round_trip_near"] for w in row["windows"]] == [False, False, True, True, True]
+    assert [w["counted"] for w in row["windows"]] == [False, False, True, True, True]
+    assert row["speedup"] == pytest.approx(1.9) and row["verdict"] == "PASS"
+    assert row["speedup_far_median"] == pytest.approx(1.6) and row["round_trip_best_ns"] == 55.0
+
+
+def test_windows_are_judged_again_when_the_machine_shows_a_better_round_trip(monkeypatch):
+    # the bench starts in a slow stretch (300 ns): windows at 300 ns look near until 55 ns is seen
+    row, _ = _measure(monkeypatch, [(2.0, 10, 16.0, 2.0)] * 2 + [GOOD] * 3, need=3, most=5,
+                      trips=[(300.0, 300.0), (300.0, 300.0)], start=(300.0, 300.0, 300.0))
+    assert row["round_trip_best_ns"] == 55.0
+    assert [w["counted"] for w in row["windows"]] == [False, False, True, True, True]
+    assert row["speedup"] == pytest.approx(1.9)
+
+
+def test_the_round_trip_threshold_is_the_documented_one(monkeypatch):
+    at = bench.ROUND_TRIP_FACTOR * 55.0
+    row, _ = _measure(monkeypatch, [GOOD] * 3, need=1, most=3,
+                      trips=[(at * (1 + 1e-9), 55.0), (55.0, at)])
+    assert [w["counted"] for w in row["windows"]] == [False, True]
 
 
 def test_a_slow_code_fails_on_a_machine_that_delivers(monkeypatch):
@@ -107,3 +144,17 @@ def test_the_real_control_loop_runs(monkeypatch):
     monkeypatch.setattr(bench, "CONTROL_LOOP", 20_000)
     c = bench.core_control()
     assert math.isfinite(c) and c > 0
+
+
+def test_the_real_round_trip_probe_runs():
+    # smoke test: two threads of this process bounce a cache line; a broken hand-over would hang
+    # until the probe's 5 s timeout and raise
+    from harness import solver
+    ns = solver.core_round_trip(2000)
+    assert math.isfinite(ns) and 0.0 < ns < 1.0e6
+
+
+def test_the_round_trip_probe_refuses_a_bad_count():
+    from harness import solver
+    with pytest.raises(solver.CpdiError, match="iters"):
+        solver.core_round_trip(0)

@@ -35,7 +35,7 @@ module cpdi_api
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
             cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
-            cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
+            cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
   public :: cpdi_solid_force, cpdi_face_velocity
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
@@ -455,6 +455,19 @@ contains
     !$ nused = omp_get_max_threads()
     call finish(st, ierr, msg)
   end subroutine cpdi_threads
+
+  subroutine cpdi_core_round_trip(iters, ns, ierr, msg)
+    !! Mean wall time [ns] of one cache-line round trip between two OpenMP threads, over
+    !! iters round trips (a control of make bench; cpdi_core_latency). Runs on 2 threads.
+    use cpdi_core_latency, only: core_round_trip
+    integer(c_int), intent(in) :: iters
+    real(c_double), intent(out) :: ns
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    call core_round_trip(int(iters, ik), ns, st)
+    call finish(st, ierr, msg)
+  end subroutine cpdi_core_round_trip
 
   subroutine cpdi_get_state(handle, n, x, v, F, sig, vol, r, ierr, msg)
     !! Copy out particle positions, velocities, F (4,n), Cauchy stress (4,n)

@@ -11,6 +11,7 @@ program test_kernels
   use cpdi_step, only: probe_cap
   use cpdi_sim, only: PROBE_MAX
   use cpdi_projection, only: projection_t, projection_alloc, projection_setup, PROJ_CELL
+  use cpdi_core_latency, only: core_round_trip
   implicit none
   integer :: nfail, i
   real(wp) :: F(4), e1(3), e2(3), s, ds, tot, h, lp, xp
@@ -73,9 +74,28 @@ program test_kernels
       exit
     end if
   end do
+  call round_trip_probe(nfail)
   print '(a,i0,a)', 'fortran kernels: ', nfail, ' failures'
   if (nfail > 0) call exit(1)
 contains
+
+  subroutine round_trip_probe(nfail)
+    !! The benchmark's cache-line probe: a positive, finite round trip between two threads (a
+    !! broken hand-over hangs until the probe's timeout and reports an error), and a refused count.
+    integer, intent(inout) :: nfail
+    type(status_t) :: st, st0
+    real(wp) :: ns
+    call core_round_trip(2000_ik, ns, st)
+    if (.not. st%ok() .or. .not. (ns > 0.0_wp .and. ns < 1.0e6_wp)) then
+      nfail = nfail + 1
+      print '(a,es12.4,1x,a)', 'FAIL core round trip: ns = ', ns, trim(st%msg)
+    end if
+    call core_round_trip(0_ik, ns, st0)
+    if (st0%ok() .or. ns /= 0.0_wp) then
+      nfail = nfail + 1
+      print '(a)', 'FAIL core round trip: iters = 0 was not refused'
+    end if
+  end subroutine round_trip_probe
 
   subroutine stencils_within_strip_height(nfail)
     !! The scatter colouring (cpdi_schedule) is race-free only if every node a particle's
