@@ -17,15 +17,15 @@ grid, projection and scheduling arrays.
 Threads (issue 24): the 32k CPDI row is also run beside 1 and 2 busy-loop processes (1 and 2
 threads back to back under the same load, until LOAD_REPEATS pairs count: a pair counts when a
 1-thread busy loop beside the same load ran at the same speed before, between and after its
-runs; the worst 2-thread/1-thread wall ratio of those is gated), the scaling curve runs 1, 2, 4, ... threads up to the cores this process may
-use (harness.available_cores) at 32k and 128k with the parallel efficiency, the gated 2-thread
-speed-up is measured in windows with a compute-bound control of the cores the machine delivers
-(speedup_windows, core_control: a window counts when its controls before and after the timed
-runs, two busy loops at once against one, both reach CONTROL_MIN; a control made of solver runs
-would also measure memory bandwidth, which is part of what the gate judges) and a control of
-where the host put them (round_trip_control: a cache-line round trip between the two cores,
-within ROUND_TRIP_FACTOR of the best the bench saw; the windows with the cores far apart are
-reported beside the gate, not in it), and `--base SHA`
+runs; the worst 2-thread/1-thread wall ratio of those is gated), the scaling curve runs 1, 2, 4,
+... threads up to the cores this process may use (harness.available_cores) at 32k and 128k with
+the parallel efficiency, the gated 2-thread speed-up is measured in windows with a compute-bound
+control of the cores the machine delivers (speedup_windows, core_control: a window counts when
+its controls before and after the timed runs, two busy loops at once against one, both reach
+CONTROL_MIN; a control made of solver runs would also measure memory bandwidth, which is part of
+what the gate judges) and a control of where the host put them (round_trip_control: a cache-line
+round trip between the two cores, within ROUND_TRIP_FACTOR of the best the bench saw; the
+windows with the cores far apart are reported beside the gate, not in it), and `--base SHA`
 builds that commit in a scratch copy (.bench-base/SHA) and interleaves 1-thread 32k CPDI runs
 of both builds. The affinity mask, the load average and the OpenMP settings are recorded. Gates
 are printed and stored (bench.json "gates"); like every bench result they do not change the
