@@ -15,9 +15,8 @@ the harness's own copy of the seeded particles: the second is the solver's parti
 grid, projection and scheduling arrays.
 
 Threads (issue 24): the 32k CPDI row is also run beside 1 and 2 busy-loop processes (1 and 2
-threads back to back under the same load, until LOAD_REPEATS pairs count: a pair counts when a
-1-thread busy loop beside the same load ran at the same speed before, between and after its
-runs; the worst 2-thread/1-thread wall ratio of those is gated), the scaling curve runs 1, 2, 4,
+threads in two fresh processes that step in turns, bench_interleave, LOAD_REPEATS times; the worst
+2-thread/1-thread wall ratio is gated), the scaling curve runs 1, 2, 4,
 ... threads up to the cores this process may use (harness.available_cores) at 32k and 128k with
 the parallel efficiency, the gated 2-thread speed-up is measured in windows with a compute-bound
 control of the cores the machine delivers (speedup_windows, core_control: a window counts when
@@ -55,8 +54,7 @@ STEPS = {"2k": 400, "8k": 200, "32k": 100, "128k": 50}
 SHAPES = ("mpm", "gimp", "cpdi")
 THREADS = (1, 2)
 REPEATS = 3
-LOAD_REPEATS = 10          # counted loaded pairs per load; the worst ratio is gated
-LOAD_SPREAD = 1.2          # a loaded pair counts when its busy-loop controls agree within this
+LOAD_REPEATS = 10          # loaded pairs per load (1 and 2 threads in turns); the worst ratio is gated
 BASE_REPEATS = 7           # interleaved base/new pairs of `--base`
 GATE_LOAD = {1: 1.3, 2: 2.0}   # busy processes -> max wall(2 threads) / wall(1 thread)
 GATE_SPEEDUP = 1.8         # unloaded 2-thread speed-up at 32k and 128k
@@ -349,61 +347,39 @@ def _machine() -> dict:
             "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
 
 
-def _loop_time() -> float:
-    """Seconds of one CONTROL_LOOP busy loop in a fresh process, as the machine runs it now."""
-    return _collect(_spin(), "control loop")["loop_s"]
+def loaded_rows(repeats: int, say) -> list[dict]:
+    """32k CPDI on 1 and 2 threads beside 1 and 2 busy processes, `repeats` pairs per load; the row
+    keeps every ratio wall(2) / wall(1) and gates the worst.
 
+    The two runs of a pair are fresh processes that step in turns of bench_interleave.CHUNK steps
+    (bench_interleave.pair), not one after the other: the host has stretches of seconds in which a
+    process beside a busy loop runs 1.5x slower (a busy loop beside one: 0.20 s, then 0.30-0.33 s
+    for seconds on end; measured at 31df99f), and a 1-thread run in one state with a 2-thread run in
+    the other read 1.46 where both ran the same 1-thread steps (per-step times 6 ms against 9 ms;
+    docs/notes/threads.md). In turns, a spell falls on both runs alike."""
+    from harness import bench_interleave
 
-def loaded_rows(repeats: int, say, most: int | None = None) -> list[dict]:
-    """32k CPDI on 1 and 2 threads beside 1 and 2 busy processes; per pair both thread counts run
-    back to back under the same load (their order alternates), and the row keeps every ratio
-    wall(2) / wall(1) and gates the worst of `repeats` counted pairs (at most `most` are tried).
-
-    A pair counts when the machine gave the same speed to a 1-thread busy loop beside the same
-    busy processes before, between and after its two runs (slowest / fastest <= LOAD_SPREAD). The
-    host has stretches in which a process beside one busy loop runs 1.5x slower (the loop alone:
-    0.20 s, then 0.30-0.33 s for seconds on end; measured at 31df99f); a 1-thread run in one state
-    and a 2-thread run in the other read 1.46 where both ran the same 1-thread steps (per-step
-    times: 6 ms against 9 ms; docs/notes/threads.md). The control runs between the solver runs,
-    never beside them, so a 2-thread run that takes cores from the busy processes cannot excuse
-    itself. Every pair is kept."""
-    most = most or 2 * repeats
     out = []
     for busy in (1, 2):
         pairs = []
-        while sum(p["counted"] for p in pairs) < repeats and len(pairs) < most:
-            r = len(pairs)
+        for _ in range(repeats):
             hogs = _busy(busy)
             try:
                 load = os.getloadavg()[0]
-                order = (1, 2) if r % 2 == 0 else (2, 1)
-                controls, runs = [_loop_time()], {}
-                for t in order:
-                    runs[t] = _run_one("32k", "cpdi", t)
-                    controls.append(_loop_time())
+                p = bench_interleave.pair("32k", "cpdi", STEPS["32k"])
             finally:
                 _stop(hogs)
-            spread = max(controls) / min(controls)
-            pairs.append({"wall_1": runs[1]["wall_s"], "wall_2": runs[2]["wall_s"],
-                          "ratio": runs[2]["wall_s"] / runs[1]["wall_s"], "loadavg_1min": load,
-                          "order": list(order), "control_s": controls, "control_spread": spread,
-                          "counted": spread <= LOAD_SPREAD})
-        counted = [p["ratio"] for p in pairs if p["counted"]]
-        worst = max(counted) if len(counted) >= repeats else None
-        verdict = "INCONCLUSIVE" if worst is None else "PASS" if worst <= GATE_LOAD[busy] else "FAIL"
+            pairs.append({"wall_1": p["wall_1"], "wall_2": p["wall_2"], "ratio": p["ratio"], "loadavg_1min": load,
+                          "chunk": p["chunk"], "chunk_s_1": p["chunk_s_1"], "chunk_s_2": p["chunk_s_2"]})
+        worst = max(p["ratio"] for p in pairs)
         row = {"name": "dam_break_32k_loaded", "size": "32k", "shape": "cpdi", "busy_processes": busy,
-               "repeats": repeats, "pairs": pairs, "counted": len(counted), "worst_ratio_2_over_1": worst,
-               "median_ratio_2_over_1": statistics.median(counted) if counted else None,
-               "worst_ratio_all_pairs": max(p["ratio"] for p in pairs), "control_spread_max": LOAD_SPREAD,
-               "gate": GATE_LOAD[busy], "pass": verdict == "PASS", "verdict": verdict}
-        say(f"  32k cpdi beside {busy} busy process(es): wall 2T/1T "
-            + (f"worst {worst:.2f} median {row['median_ratio_2_over_1']:.2f}" if worst is not None else
-               "fewer counted pairs than needed, the machine did not hold still")
-            + f" over {len(counted)} of {len(pairs)} pairs whose loop controls agreed within {LOAD_SPREAD} (1T "
+               "repeats": repeats, "interleaved": f"in turns of {bench_interleave.CHUNK} steps", "pairs": pairs,
+               "worst_ratio_2_over_1": worst, "median_ratio_2_over_1": statistics.median(p["ratio"] for p in pairs),
+               "gate": GATE_LOAD[busy], "pass": worst <= GATE_LOAD[busy]}
+        say(f"  32k cpdi beside {busy} busy process(es), 1T and 2T in turns of {bench_interleave.CHUNK} steps: "
+            f"wall 2T/1T worst {worst:.2f} median {row['median_ratio_2_over_1']:.2f} over {repeats} pairs (1T "
             + ",".join(f"{p['wall_1']:.2f}" for p in pairs) + " / 2T " + ",".join(f"{p['wall_2']:.2f}" for p in pairs)
-            + " s; left out: " + (", ".join(f"x{p['ratio']:.2f} (controls {p['control_spread']:.2f})"
-                                           for p in pairs if not p["counted"]) or "none")
-            + f")  gate <= {GATE_LOAD[busy]}: {verdict}")
+            + f" s)  gate <= {GATE_LOAD[busy]}: {'PASS' if row['pass'] else 'FAIL'}")
         out.append(row)
     return out
 
@@ -550,8 +526,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     gates = {f"loaded_{r['busy_processes']}busy_worst_ratio": {"value": r["worst_ratio_2_over_1"], "max": r["gate"],
-                                                               "pass": r["pass"], "verdict": r["verdict"]}
-             for r in loaded}
+                                                               "pass": r["pass"]} for r in loaded}
     for w in windows:
         if w["size"] in ("32k", "128k"):
             gates[f"speedup_2threads_{w['size']}"] = {"value": w["speedup"], "min": GATE_SPEEDUP,

@@ -1,89 +1,92 @@
 """The bench's loaded gate (2 threads beside busy processes never slower than GATE_LOAD x one
-thread) compares the two runs of a pair only where the machine held still: a 1-thread busy loop
-beside the same load, timed before, between and after the runs, agreed within LOAD_SPREAD
-(harness.bench.loaded_rows; solver runs, busy processes and loops are stubbed)."""
+thread) compares two fresh processes that step in turns (harness.bench_interleave.pair), so that a
+slow spell of a shared machine falls on both runs alike: only one steps at a time, they alternate,
+the first to go alternates, both take the same steps, and a child that fails is reported with its
+own error. The fake children here follow the real protocol and log when they step."""
 
 from __future__ import annotations
 
-import itertools
+import sys
 
 import pytest
 
-from harness import bench
+from harness import bench, bench_interleave
+
+# A child that speaks bench_interleave's protocol: each step sleeps 2 ms; it reports the monotonic
+# times at which each of its warm-ups and turns began and ended (one clock for all processes).
+FAKE = r'''
+import json, sys, time
+print("ready", flush=True)
+spans, steps = [], 0
+while True:
+    cmd, _, n = sys.stdin.readline().strip().partition(" ")
+    if cmd not in ("warm", "step"):
+        break
+    t0 = time.monotonic()
+    time.sleep(0.002 * int(n))
+    spans.append([cmd, t0, time.monotonic()])
+    steps += int(n) if cmd == "step" else 0
+    print("ok", flush=True)
+print(json.dumps({"wall_s": 0.002 * steps * THREADS, "steps": steps, "chunk_s": [], "spans": spans}), flush=True)
+'''
 
 
-class _Fake:
-    """Per pair: (control, first run's wall, control, second run's wall, control); the runs are in
-    the pair's order (1 then 2 threads for even pairs, 2 then 1 for odd ones)."""
-
-    def __init__(self, pairs):
-        self.values = itertools.chain.from_iterable(pairs)
-        self.log = []
-
-    def loop(self):
-        self.log.append("control")
-        return next(self.values)
-
-    def run_one(self, size, shape, threads, repo=None, steps=None):
-        self.log.append(f"run {threads}")
-        return {"wall_s": next(self.values)}
-
-    def busy(self, n):
-        self.log.append(f"busy {n}")
-        return []
+def _fake(size, shape, threads, repo):
+    return [sys.executable, "-c", FAKE.replace("THREADS", str(threads))]
 
 
-def _rows(monkeypatch, pairs, repeats=2, most=4):
-    f = _Fake(pairs)
-    monkeypatch.setattr(bench, "_loop_time", f.loop)
-    monkeypatch.setattr(bench, "_run_one", f.run_one)
-    monkeypatch.setattr(bench, "_busy", f.busy)
+def _broken(size, shape, threads, repo):
+    if threads == 2:
+        return [sys.executable, "-c", "import sys; print('ready', flush=True); sys.stdin.readline(); "
+                                      "sys.exit('error: the solver refused the case (particles left the grid)')"]
+    return _fake(size, shape, threads, repo)
+
+
+def test_the_runs_step_in_turns_never_at_once():
+    p = bench_interleave.pair("32k", "cpdi", 25, chunk=5, warm=3, command=_fake)
+    one, two = (r["spans"] for r in p["runs"])
+    assert p["steps"] == [25, 25]
+    events = sorted([(a, b, "1", c) for c, a, b in one] + [(a, b, "2", c) for c, a, b in two])
+    for (_, b0, *_), (a1, *_) in zip(events, events[1:], strict=False):
+        assert b0 <= a1   # one process at a time
+    order = [who for *_, who, cmd in events if cmd == "step"]
+    # warm-ups first, one after the other; then turns, the first to go alternating
+    assert [(who, cmd) for *_, who, cmd in events[:2]] == [("1", "warm"), ("2", "warm")]
+    assert order == ["1", "2", "2", "1", "1", "2", "2", "1", "1", "2"]
+
+
+def test_the_ratio_is_the_second_run_over_the_first():
+    p = bench_interleave.pair("32k", "cpdi", 10, chunk=5, warm=1, command=_fake)
+    assert p["wall_2"] == pytest.approx(2 * p["wall_1"]) and p["ratio"] == pytest.approx(2.0)
+
+
+def test_a_failing_child_is_reported_with_its_own_error():
+    with pytest.raises(RuntimeError, match="(?s)2-thread run.*particles left the grid"):
+        bench_interleave.pair("32k", "cpdi", 10, chunk=5, warm=1, command=_broken)
+
+
+def test_the_real_children_run_the_bench_case():
+    p = bench_interleave.pair("2k", "cpdi", 6, chunk=3, warm=2)
+    assert p["steps"] == [6, 6] and p["wall_1"] > 0 and p["wall_2"] > 0
+    assert len(p["chunk_s_1"]) == len(p["chunk_s_2"]) == 2
+    assert [r["threads"] for r in p["runs"]] == [1, 2]
+
+
+def _loaded(monkeypatch, ratios):
+    it = iter(ratios)
+
+    def pair(size, shape, steps):
+        r = next(it)
+        return {"wall_1": 1.0, "wall_2": r, "ratio": r, "chunk": 10, "chunk_s_1": [], "chunk_s_2": []}
+
+    monkeypatch.setattr(bench_interleave, "pair", pair)
+    monkeypatch.setattr(bench, "_busy", lambda n: [])
     monkeypatch.setattr(bench, "_stop", lambda hogs: None)
-    return bench.loaded_rows(repeats, lambda msg: None, most=most), f.log
+    return bench.loaded_rows(3, lambda msg: None)
 
 
-STILL = (0.2, 0.6, 0.2, 0.66, 0.2)   # the machine held still; 2T/1T 1.1 in an even pair (1 thread first)
-
-
-def test_controls_bracket_each_run_and_the_order_alternates(monkeypatch):
-    _, log = _rows(monkeypatch, [STILL] * 4)
-    pair = ["control", "run {}", "control", "run {}", "control"]
-    one = ["busy 1"] + [x.format(1) if i == 1 else x.format(2) if i == 3 else x for i, x in enumerate(pair)]
-    two = ["busy 1"] + [x.format(2) if i == 1 else x.format(1) if i == 3 else x for i, x in enumerate(pair)]
-    assert log[:12] == one + two
-
-
-def test_a_pair_across_a_change_of_the_machine_is_kept_but_not_gated(monkeypatch):
-    # first pair: the host slowed everything 1.5x after the 1-thread run (controls 0.2 -> 0.3):
-    # its 1.5 ratio is the host's; the next two pairs held still
-    moved = (0.2, 0.6, 0.3, 0.9, 0.3)
-    rows, _ = _rows(monkeypatch, [moved, (0.2, 0.66, 0.2, 0.6, 0.2), STILL] * 2)
-    one = rows[0]
-    assert [p["counted"] for p in one["pairs"]] == [False, True, True]
-    assert one["pairs"][0]["ratio"] == pytest.approx(1.5) and one["worst_ratio_all_pairs"] == pytest.approx(1.5)
-    assert one["worst_ratio_2_over_1"] == pytest.approx(1.1) and one["verdict"] == "PASS"
-
-
-def test_a_slow_second_thread_fails_when_the_machine_held_still(monkeypatch):
-    rows, _ = _rows(monkeypatch, [(0.2, 0.6, 0.2, 0.9, 0.2), STILL] * 2)
-    assert rows[0]["worst_ratio_2_over_1"] == pytest.approx(1.5) and rows[0]["verdict"] == "FAIL"
-    assert not rows[0]["pass"]
-
-
-def test_a_machine_that_never_holds_still_is_inconclusive(monkeypatch):
-    moved = (0.2, 0.6, 0.3, 0.6, 0.2)
-    rows, _ = _rows(monkeypatch, [moved] * 8, repeats=2, most=4)
-    assert [r["verdict"] for r in rows] == ["INCONCLUSIVE", "INCONCLUSIVE"]
-    assert rows[0]["worst_ratio_2_over_1"] is None and len(rows[0]["pairs"]) == 4 and not rows[0]["pass"]
-
-
-def test_the_spread_threshold_is_the_documented_one(monkeypatch):
-    at = 0.2 * bench.LOAD_SPREAD
-    rows, _ = _rows(monkeypatch, [(0.2, 0.6, at * (1 + 1e-9), 0.6, 0.2), (0.2, 0.6, at, 0.6, 0.2),
-                                  (0.2, 0.6, 0.2, 0.6, 0.2)] * 2, repeats=2, most=3)
-    assert [p["counted"] for p in rows[0]["pairs"]] == [False, True, True]
-
-
-def test_the_real_loop_control_runs(monkeypatch):
-    monkeypatch.setattr(bench, "CONTROL_LOOP", 20_000)
-    assert 0.0 < bench._loop_time() < 5.0
+def test_the_worst_pair_is_gated_at_the_documented_bounds(monkeypatch):
+    rows = _loaded(monkeypatch, [1.0, bench.GATE_LOAD[1], 1.1, 1.0, bench.GATE_LOAD[2] + 1e-9, 1.0])
+    assert [r["worst_ratio_2_over_1"] for r in rows] == [bench.GATE_LOAD[1], pytest.approx(bench.GATE_LOAD[2])]
+    assert [r["pass"] for r in rows] == [True, False]
+    assert [r["busy_processes"] for r in rows] == [1, 2] and rows[0]["median_ratio_2_over_1"] == pytest.approx(1.1)
