@@ -150,8 +150,9 @@ def test_the_real_round_trip_probe_runs():
     # smoke test: two threads of this process bounce a cache line; a broken hand-over would hang
     # until the probe's 5 s timeout and raise
     from harness import solver
-    ns = solver.core_round_trip(2000)
-    assert math.isfinite(ns) and 0.0 < ns < 1.0e6
+    # (no two cores hand a line back and forth in under 1 ns; 0.1 s a trip allows for a busy machine)
+    ns = solver.core_round_trip(500)
+    assert math.isfinite(ns) and 1.0 < ns < 1.0e8
 
 
 def test_the_round_trip_probe_refuses_a_bad_count():
