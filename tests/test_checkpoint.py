@@ -142,6 +142,12 @@ def test_set_full_state_refuses_bad_input():
     bad[0, 3] = np.nan
     with pytest.raises(CpdiError, match="NaN or Inf"):
         sim.set_full_state(bad, s)
+    bad_s = s.copy()
+    bad_s[0] = np.inf   # the time
+    with pytest.raises(CpdiError, match="NaN or Inf"):
+        sim.set_full_state(p, bad_s)
+    with pytest.raises(CpdiError, match="NaN or Inf"):   # damaged both ways at once
+        sim.set_full_state(bad, bad_s)
     with pytest.raises(CpdiError, match="particles but the simulation has"):
         sim.set_full_state(p[:, :-1], s)
     with pytest.raises(CpdiError, match="rows per particle"):

@@ -542,3 +542,15 @@ def test_resting_tank_stays_at_rest_with_hydrostatic_pressure():
     assert 0 < floor.sum() < n // 10
     assert np.linalg.norm(p - exact) <= 1e-6 * np.linalg.norm(exact)
     assert np.abs(p - exact)[floor].max() <= 1e-6 * rho * g * depth
+
+
+@pytest.mark.parametrize(("nx", "ny", "h"), [(2, 5, 1.0), (5, 2, 1.0), (5, 5, 0.0), (5, 5, float("nan"))])
+def test_the_test_grid_refuses_a_missing_interior_or_cell_size(nx, ny, h):
+    # a grid whose outer ring is boundary needs 3 cells each way for one interior cell; each
+    # bound alone (a short x, a short y, a cell size that is not positive) is refused, the counts
+    # by the wrapper's own checks (cpdi.pyf) and the cell size by the solver
+    cell = np.full((nx, ny), WALL, dtype=np.int32)
+    zeros = np.zeros((nx, ny))
+    with pytest.raises(CpdiError, match=r"nx, ny >= 3 and h > 0|\(nx >= 3\) failed|\(ny >= 3\) failed"):
+        _call("cpdi_poisson_project", nx, ny, flat(cell, np.int32), flat(zeros), flat(zeros), flat(zeros),
+              0.01, 1000.0, float(h), 0.0, 1e-12, 100)
