@@ -185,14 +185,16 @@ def _judge(wins: list[dict], best_ns: float) -> None:
 def speedup_windows(size: str, say, need: int = WINDOWS_VALID, most: int = WINDOWS_MAX) -> dict:
     """The unloaded 2-thread speed-up, measured in windows with a control of the machine.
 
-    A window runs, back to back: the core control, 1 thread, 2 threads, the core control
-    again. A shared VM has spells in which its two vCPUs deliver one core's work (seen here: two
-    independent processes each at half speed); a window counts when both its controls reach
-    CONTROL_MIN (so a spell that starts or ends during the timed runs is caught on one side),
-    and the gate takes the median speed-up of the first `need` such windows (at most `most`
-    windows are tried). Every window is kept. The runs of a window are WINDOW_STEPS long (300 at
-    32k, 0.9 s on one thread): at 100 steps a window was one 0.3 s pair, and its readings spread
-    from 1.47 to 2.31 on one idle host.
+    A window runs, back to back: the core control, 1 thread and 2 threads in turns of
+    bench_interleave.CHUNK steps (two fresh processes, one stepping at a time: a spell of the host
+    during the runs falls on both; run one after the other, windows whose controls both read
+    1.86-2.24 gave 1.38 and 1.41 at e67bb98 beside 1.84-2.05), the core control again. A shared VM
+    has spells in which its two vCPUs deliver one core's work (seen here: two independent processes
+    each at half speed); a window counts when both its controls reach CONTROL_MIN (so a spell that
+    starts or ends during the timed runs is caught on one side), and the gate takes the median
+    speed-up of the first `need` such windows (at most `most` windows are tried). Every window is
+    kept. The runs of a window are WINDOW_STEPS long (300 at 32k, 0.9 s on one thread): at 100 steps
+    a window was one 0.3 s pair, and its readings spread from 1.47 to 2.31 on one idle host.
 
     The host also has spells (3-26 s, about a fifth of the time on this VM) in which it keeps two
     full vCPUs but places them where a cache-line round trip takes 345 ns instead of 55 ns; a
@@ -208,13 +210,15 @@ def speedup_windows(size: str, say, need: int = WINDOWS_VALID, most: int = WINDO
     1.70-1.91x at 32k on a machine that gave the 2-thread run 1.85-2.03x, so it measured memory
     as well as cores. The solver's own memory-bound scaling is what the gate judges; a control
     that shares that limit would excuse it."""
+    from harness import bench_interleave
+
     steps = WINDOW_STEPS.get(size, STEPS[size])
     best = min(round_trip_control() for _ in range(3))
     wins = []
     for _ in range(most):
         before, rt_before = core_control(), round_trip_control()
-        one = _run_one(size, "cpdi", 1, steps=steps)["particle_updates_per_s"]
-        two = _run_one(size, "cpdi", 2, steps=steps)["particle_updates_per_s"]
+        pair = bench_interleave.pair(size, "cpdi", steps)   # 1 and 2 threads in turns
+        one, two = (r["particles"] * r["steps"] / r["wall_s"] for r in pair["runs"])
         after, rt_after = core_control(), round_trip_control()
         best = min(best, rt_before, rt_after)
         wins.append({"updates_per_s_1": one, "updates_per_s_2": two, "speedup": two / one,

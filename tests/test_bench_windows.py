@@ -11,7 +11,7 @@ import math
 
 import pytest
 
-from harness import bench
+from harness import bench, bench_interleave
 
 
 class _Fake:
@@ -31,16 +31,17 @@ class _Fake:
         self.log.append("trip")
         return next(self.trips)
 
-    def run_one(self, size, shape, threads, repo=None, steps=None):
-        self.log.append(f"run {threads} ({steps} steps)")
-        return {"particle_updates_per_s": next(self.values)}
+    def pair(self, size, shape, steps):
+        self.log.append(f"1 and 2 threads in turns ({steps} steps)")
+        one, two = next(self.values), next(self.values)   # rates: 100 particles x steps / wall
+        return {"runs": [{"particles": 100, "steps": steps, "wall_s": 100 * steps / r} for r in (one, two)]}
 
 
 def _measure(monkeypatch, windows, need=3, most=5, trips=None, start=(55.0, 55.0, 55.0)):
     f = _Fake(windows, trips, start)
     monkeypatch.setattr(bench, "core_control", f.control)
     monkeypatch.setattr(bench, "round_trip_control", f.round_trip)
-    monkeypatch.setattr(bench, "_run_one", f.run_one)
+    monkeypatch.setattr(bench_interleave, "pair", f.pair)
     return bench.speedup_windows("32k", lambda msg: None, need=need, most=most), f.log
 
 
@@ -59,7 +60,7 @@ def test_a_window_with_a_bad_control_before_or_after_does_not_count(monkeypatch)
 def test_the_controls_bracket_the_timed_runs(monkeypatch):
     _, log = _measure(monkeypatch, [GOOD] * 3)
     # three round trips set the machine's best, then each window; stops at `need` counted windows
-    run = [f"run {t} ({bench.WINDOW_STEPS['32k']} steps)" for t in (1, 2)]
+    run = [f"1 and 2 threads in turns ({bench.WINDOW_STEPS['32k']} steps)"]
     assert log == ["trip"] * 3 + (["control", "trip"] + run + ["control", "trip"]) * 3
 
 
