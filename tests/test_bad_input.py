@@ -153,6 +153,18 @@ def test_option_bounds_are_refused(options, message):
     sim.close()
 
 
+@pytest.mark.parametrize("fullness", [-1e-9, 1.0 + 1e-9, -np.inf, np.inf, np.nan])
+def test_contact_fullness_outside_a_cell_is_refused(fullness):
+    # the fraction of a cell that supports a body must lie in [0, 1]; both bounds are allowed
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    body = np.ones(len(good_parts()["x"]), dtype=np.int32)
+    with pytest.raises(CpdiError, match="fullness"):
+        sim.set_bodies(body, contact=True, fullness=fullness)
+    sim.set_bodies(body, contact=True, fullness=0.0)
+    sim.set_bodies(body, contact=True, fullness=1.0)
+    sim.close()
+
+
 def test_friction_must_be_finite():
     sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
     n = len(good_parts()["x"])

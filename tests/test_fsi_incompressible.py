@@ -402,6 +402,18 @@ def test_moving_rigid_body_imposes_its_normal_velocity_on_the_water(coupling):
     np.testing.assert_array_equal(st["v"][nw:], np.tile(U, (len(st["v"]) - nw, 1)))
 
 
+def test_a_rigid_body_in_the_top_cell_row_imposes_its_velocity_there_too():
+    # the same in a tank filled to its top, the block in the top four cell rows (16..19 of 20):
+    # every row of the face lattice, the last included, carries the block's velocity
+    U = (0.1, -0.05)
+    sim, _ = tank_with_block(2000.0, ((0.4, 1.0 - 4 * H_CELL), (0.6, 1.0)), rigid_velocity=U, depth=1.0)
+    sim.advance(1.0, max_steps=3)
+    u, _ = sim.face_velocity()
+    sim.close()
+    assert u.shape == (21, 20)
+    assert np.all(u[8, 16:20] == U[0]) and np.all(u[12, 16:20] == U[0])
+
+
 def test_solids_with_incompressible_water_need_a_water_and_no_contact():
     sim, nw = tank_with_block(500.0, ((0.3, 0.4), (0.7, 0.6)))
     sim.set_bodies(np.r_[np.zeros(nw, int), np.ones(sim.n - nw, int)], contact=True)
