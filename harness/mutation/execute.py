@@ -6,6 +6,7 @@ import io
 import json
 import os
 import queue
+import random
 import re
 import shutil
 import subprocess
@@ -138,7 +139,10 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
             full_timeout: float, full: bool, progress) -> list[dict]:
     """Test every mutant not yet in the journal; returns all journal rows (old and new)."""
     done = {r["id"]: r for r in journal_rows(journal, mutants)}
+    # in a fixed shuffled order, not file by file: a run cut short then leaves a random part of the
+    # sample tested (its partial report, --report-only, speaks for every file), not the first files
     todo = [m for m in mutants if m.id not in done]
+    random.Random(len(mutants)).shuffle(todo)
     if not todo:
         return [done[m.id] for m in mutants if m.id in done]
     root = Path(os.environ.get("CPDI_MUTATE_SCRATCH", "/tmp")) / f"cpdi-mutate-{rev[:12]}"
