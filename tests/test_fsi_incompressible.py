@@ -402,6 +402,20 @@ def test_moving_rigid_body_imposes_its_normal_velocity_on_the_water(coupling):
     np.testing.assert_array_equal(st["v"][nw:], np.tile(U, (len(st["v"]) - nw, 1)))
 
 
+@pytest.mark.parametrize("coupling", ["batty", "mixture"])
+def test_water_closes_the_wake_of_a_moving_rigid_body(coupling):
+    # a rigid block (cells 4..7 x 2..5) driven at 0.5 m/s through the water for 0.3 s moves 3 cells:
+    # the cells it left hold water again (a cell the body left must not go on bounding the water),
+    # and the only dry cells below the surface are the four columns it covers now (7..10)
+    sim, _ = tank_with_block(2000.0, ((0.2, 0.1), (0.4, 0.3)), rigid_velocity=(0.5, 0.0), coupling=coupling)
+    sim.advance(0.3)
+    water = sim.grid_pressure()["water"]
+    sim.close()
+    assert np.all(water[4:7, 2:6] == 1)
+    dry = np.argwhere(water[:, :8] == 0)
+    assert sorted({int(i) for i, _ in dry}) == [7, 8, 9, 10] and sorted({int(j) for _, j in dry}) == [2, 3, 4, 5]
+
+
 def test_a_rigid_body_in_the_top_cell_row_imposes_its_velocity_there_too():
     # the same in a tank filled to its top, the block in the top four cell rows (16..19 of 20):
     # every row of the face lattice, the last included, carries the block's velocity
