@@ -123,9 +123,9 @@ def measure(size: str, shape: str, steps: int) -> dict:
             "phase_s": timers, "phase_ns_per_update": {k: v / updates * 1e9 for k, v in timers.items()}}
 
 
-def _spawn(size: str, shape: str, threads: int, repo: Path = REPO, steps: int | None = None) -> subprocess.Popen:
+def _spawn(size: str, shape: str, threads: int, repo: Path = REPO) -> subprocess.Popen:
     code = ("import json; from harness.bench import measure; "
-            f"print(json.dumps(measure({size!r}, {shape!r}, {steps or STEPS[size]})))")
+            f"print(json.dumps(measure({size!r}, {shape!r}, {STEPS[size]})))")
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(repo))
     return subprocess.Popen([sys.executable, "-c", code], cwd=repo, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -138,8 +138,8 @@ def _collect(p: subprocess.Popen, what: str) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-def _run_one(size: str, shape: str, threads: int, repo: Path = REPO, steps: int | None = None) -> dict:
-    return _collect(_spawn(size, shape, threads, repo, steps), f"{size}/{shape}/{threads} thread(s)")
+def _run_one(size: str, shape: str, threads: int, repo: Path = REPO) -> dict:
+    return _collect(_spawn(size, shape, threads, repo), f"{size}/{shape}/{threads} thread(s)")
 
 
 def _spin() -> subprocess.Popen:
