@@ -74,10 +74,7 @@ class _Proc:
             self.p.stdin.flush()
         got = self.p.stdout.readline().strip()
         if want is not None and got != want:
-            self.p.wait(timeout=30)
-            self.err.seek(0)
-            raise RuntimeError(f"benchmark {self.what} (interleaved) stopped answering ({got!r} instead of "
-                               f"{want!r}):\n{self.err.read().strip()[-3000:]}")
+            self._fail(f"stopped answering ({got!r} instead of {want!r})")
         return got
 
     def result(self) -> dict:
@@ -85,16 +82,20 @@ class _Proc:
         try:
             return json.loads(line)
         except json.JSONDecodeError:
-            self.p.wait(timeout=30)
-            self.err.seek(0)
-            raise RuntimeError(f"benchmark {self.what} (interleaved) ended without its totals ({line!r}):\n"
-                               f"{self.err.read().strip()[-3000:]}") from None
+            self._fail(f"ended without its totals ({line!r})")
 
-    def close(self) -> None:
+    def _fail(self, what: str) -> None:
+        """Stop the child (if it still runs) and raise with what it wrote to stderr."""
+        self.close(keep_err=True)
+        self.err.seek(0)
+        raise RuntimeError(f"benchmark {self.what} (interleaved) {what}:\n{self.err.read().strip()[-3000:]}")
+
+    def close(self, keep_err: bool = False) -> None:
         if self.p.poll() is None:
             self.p.kill()
         self.p.wait()
-        self.err.close()
+        if not keep_err:
+            self.err.close()
 
 
 def pair(size: str, shape: str, steps: int, threads: tuple[int, int] = (1, 2), chunk: int = CHUNK,

@@ -65,6 +65,20 @@ def test_a_failing_child_is_reported_with_its_own_error():
         bench_interleave.pair("32k", "cpdi", 10, chunk=5, warm=1, command=_broken)
 
 
+def _confused(size, shape, threads, repo):
+    # answers nonsense and then hangs: it must be stopped, not waited for
+    return [sys.executable, "-c", "import sys, time; print('ready', flush=True); sys.stdin.readline(); "
+                                  "print('what?', flush=True); time.sleep(600)"]
+
+
+def test_a_child_that_answers_wrong_is_stopped_and_reported():
+    import time
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="1-thread run.*'what\\?' instead of 'ok'"):
+        bench_interleave.pair("32k", "cpdi", 10, chunk=5, warm=1, command=_confused)
+    assert time.monotonic() - t0 < 20
+
+
 def test_the_real_children_run_the_bench_case():
     p = bench_interleave.pair("2k", "cpdi", 6, chunk=3, warm=2)
     assert p["steps"] == [6, 6] and p["wall_1"] > 0 and p["wall_2"] > 0
