@@ -85,28 +85,29 @@ contains
     g%walls = walls
     g%wall_node = [GRID_PAD + 1, GRID_PAD + 1 + ncell(1), GRID_PAD + 1, GRID_PAD + 1 + ncell(2)]
     g%nf = 0
-    call grid_fields(g, 1_ik, .false., st)
+    call grid_fields(g, 1_ik, .false., .false., st)
   end subroutine grid_init
 
-  subroutine grid_fields(g, nf, rigid, st)
+  subroutine grid_fields(g, nf, rigid, volumes, st)
     !! (Re)allocate the nodal arrays for nf velocity fields (no-op if already so). The
-    !! rigid-particle arrays (mr, prx, pry) are sized only when rigid particles exist and
-    !! the contact arrays (gmx, gmy, gv) only for several fields: memory is spent on
-    !! what the run uses.
+    !! rigid-particle arrays (mr, prx, pry) are sized only when rigid particles exist, the
+    !! normals (gmx, gmy) only for several fields, and the fields' volumes (gv) only with
+    !! `volumes` (contact: the walls' volume constraint needs them for one body too): memory
+    !! is spent on what the run uses.
     type(grid_t), intent(inout) :: g
     integer(ik), intent(in) :: nf
-    logical, intent(in) :: rigid
+    logical, intent(in) :: rigid, volumes
     type(status_t), intent(inout) :: st
     integer :: ierr, n, nr
     if (allocated(g%m)) then
-      if (g%nf == nf .and. ((size(g%mr, 2) > 0) .eqv. rigid)) return
+      if (g%nf == nf .and. ((size(g%mr, 2) > 0) .eqv. rigid) .and. ((size(g%gv, 2) > 0) .eqv. volumes)) return
     end if
     if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%gmx, g%gmy, g%gv)
     n = g%nnodes
     nr = merge(nf, 0_ik, rigid)
     allocate (g%m(n, nf), g%px(n, nf), g%py(n, nf), g%fx(n, nf), g%fy(n, nf), g%vx(n, nf), g%vy(n, nf), &
               g%mr(n, nr), g%prx(n, nr), g%pry(n, nr), g%gmx(n, merge(nf, 0_ik, nf > 1)), &
-              g%gmy(n, merge(nf, 0_ik, nf > 1)), g%gv(n, merge(nf, 0_ik, nf > 1)), stat=ierr)
+              g%gmy(n, merge(nf, 0_ik, nf > 1)), g%gv(n, merge(nf, 0_ik, volumes)), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
       g%nf = 0

@@ -174,7 +174,7 @@ contains
         s%field_solid(b) = .not. any(pack(s%fluid(s%p%mat), s%body == b))
       end do
     end if
-    call grid_fields(s%g, nf, s%any_rigid, st)
+    call grid_fields(s%g, nf, s%any_rigid, s%contact, st)
   end subroutine prepare_fields
 
   pure real(wp) function sim_stable_dt(s)

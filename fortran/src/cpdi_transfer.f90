@@ -37,10 +37,10 @@ contains
     if (s%g%nf > 1) then
       s%g%gmx = 0.0_wp
       s%g%gmy = 0.0_wp
-      s%g%gv = 0.0_wp
     end if
+    if (size(s%g%gv, 2) > 0) s%g%gv = 0.0_wp
     !$omp end single
-    simple = s%g%nf == 1 .and. .not. s%any_rigid
+    simple = s%g%nf == 1 .and. .not. s%any_rigid .and. size(s%g%gv, 2) == 0
     do colour = 1, 2
       call strip_start(blk, s%sp, colour)
       do while (block_next(blk, b))
@@ -109,9 +109,10 @@ contains
     integer(ik), intent(in) :: m0, m1
     integer(ik) :: m, ip, k, a, f
     real(wp) :: mp, mvx, mvy, vol, sxx, syy, sxy, bx, by, wk, gxk, gyk, wm
-    logical :: rig, multi
+    logical :: rig, multi, vols
 
     multi = s%g%nf > 1
+    vols = size(s%g%gv, 2) > 0
     associate (g => s%g, p => s%p, sh => s%sh)
       do m = m0, m1
         ip = s%sp%perm(m)
@@ -142,8 +143,8 @@ contains
           if (multi) then
             g%gmx(k, f) = g%gmx(k, f) + mp*gxk
             g%gmy(k, f) = g%gmy(k, f) + mp*gyk
-            g%gv(k, f) = g%gv(k, f) + wk*vol
           end if
+          if (vols) g%gv(k, f) = g%gv(k, f) + wk*vol
         end do
       end do
     end associate
@@ -159,7 +160,7 @@ contains
     logical :: musl, simple
 
     musl = s%opt%update == UPDATE_MUSL
-    simple = s%g%nf == 1 .and. .not. s%any_rigid
+    simple = s%g%nf == 1 .and. .not. s%any_rigid .and. size(s%g%gv, 2) == 0
     call block_start(blk)
     do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
