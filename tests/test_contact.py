@@ -163,6 +163,31 @@ def test_block_laid_on_the_floor_stays_on_it(bodies):
     assert min(lowest_centre) > 0.2 * H   # the bottom row's centres start at 0.25 cells
 
 
+@pytest.mark.parametrize("fullness", [0.5, 0.9, 1.0])
+def test_a_body_touching_the_floor_is_held_at_every_fullness_up_to_one(fullness):
+    """A body touching the wall fills the wall node's inside support exactly as well as the next
+    node's, so a wall node releases it under no fullness up to 1, the limit included: in its first
+    step a block laid on the floor moves as under fullness 0 (a wall that never releases), its
+    bottom row slower than free fall. (Cells of 1/4 m, so the two fills come out exactly equal;
+    a release at equality let the bottom row fall freely, at g dt.)"""
+    def first_step(f):
+        a = block_particles((0.5, 0.0), (1.5, 0.5), 0.25, 2, 1000.0)
+        sim = Simulation()
+        sim.set_grid((0.0, 0.0), (8, 8), 0.25, ("slip",) * 4)
+        sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+        sim.set_particles(**a)
+        sim.set_bodies(np.zeros(len(a["x"]), int), contact=True, fullness=f)
+        sim.set_options(shape="cpdi", gravity=(0.0, -9.81), cfl=0.3, flip=0.99)
+        sim.advance(1e9, max_steps=1)
+        v, dt = sim.state()["v"], sim.diagnostics()["dt"]
+        sim.close()
+        return v[a["x"][:, 1] < 0.125, 1], dt
+    bottom, dt = first_step(fullness)
+    never, _ = first_step(0.0)
+    np.testing.assert_array_equal(bottom, never)
+    assert np.all(bottom > -0.5 * 9.81 * dt), "the floor must hold the bottom row"
+
+
 # the grid's origin: at (0.3151, 0.1233) the computed positions of the wall nodes come out a
 # rounding error (1e-17 m) inside the floor and (1e-16 m) outside the right wall (this build's
 # arithmetic), which the wall treatment must not notice: where the grid sits is no physics
