@@ -1,6 +1,7 @@
 !> Fortran-only driver for `make memcheck`: a small water column with an elastic block in
 !> contact and the projection on, through the same API Python uses, plus the error paths; the
-!> same water column incompressible, with its face-velocity and cell-pressure queries.
+!> same water column incompressible, with its face-velocity and cell-pressure queries; the block
+!> alone with contact on (one velocity field).
 !> Built with -fsanitize=address and the debug flags; any invalid access or leak fails it.
 program memcheck_driver
   use, intrinsic :: iso_c_binding, only: c_int, c_double
@@ -106,6 +107,21 @@ program memcheck_driver
   call cpdi_face_velocity(h, 40, 20, fu, fv, ierr, msg); call expect_ok('face velocity')
   call cpdi_grid_pressure(h, 40, 20, cp, cf, ck, ierr, msg); call expect_ok('grid pressure')
   call cpdi_free(h, ierr, msg); call expect_ok('free incompressible')
+  ! the elastic block alone with contact on: one body, one velocity field, the walls under the
+  ! volume constraint (their volumes were once read out of bounds for a single field)
+  call cpdi_new(h, ierr, msg); call expect_ok('new one body')
+  call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.01_c_double, [1, 1, 1, 0], &
+                     ierr, msg); call expect_ok('grid one body')
+  call cpdi_set_materials(h, 2, [2_c_int, 1_c_int], props, ierr, msg); call expect_ok('materials one body')
+  call cpdi_set_particles(h, n - nw, x(:, nw + 1:n), v(:, nw + 1:n), m(nw + 1:n), vol(nw + 1:n), r(:, nw + 1:n), &
+                          mat(nw + 1:n), ierr, msg); call expect_ok('particles one body')
+  call cpdi_set_bodies(h, n - nw, [(1_c_int, k = nw + 1, n)], 1, 0.0_c_double, 0.9_c_double, ierr, msg)
+  call expect_ok('bodies one body')
+  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 0_c_int], &
+                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
+                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options one body')
+  call cpdi_advance(h, 0.01_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance one body')
+  call cpdi_free(h, ierr, msg); call expect_ok('free one body')
   ! a state whose signal speed is not finite (a speed that overflows), refused when it is
   ! first prepared, in a run that never used the projection
   call cpdi_new(h, ierr, msg); call expect_ok('new overflow')
