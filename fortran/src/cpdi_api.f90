@@ -56,7 +56,9 @@ contains
   end subroutine finish
 
   subroutine lookup(handle, s, st)
-    !! Resolve a handle to its simulation.
+    !! Resolve a handle to its simulation; s is null when st reports an error. Callers test
+    !! st%ok() in an if of its own before touching s: Fortran need not short-circuit `.and.`,
+    !! and gfortran at -O0 evaluates both operands (a freed handle then read through null).
     integer(c_int), intent(in) :: handle
     type(sim_t), pointer, intent(out) :: s
     type(status_t), intent(inout) :: st
@@ -258,8 +260,12 @@ contains
     call lookup(handle, s, st)
     if (st%ok() .and. .not. (fullness >= 0.0_wp .and. fullness <= 1.0_wp)) &
       call st%set(CPDI_ERR_INPUT, 'contact fullness must lie in [0, 1] (fraction of a cell)')
-    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before bodies')
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body needs one entry per particle')
+    if (st%ok()) then
+      if (.not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before bodies')
+    end if
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body needs one entry per particle')
+    end if
     if (st%ok() .and. any(body < 1)) call st%set(CPDI_ERR_INPUT, 'body indices start at 1')
     if (st%ok() .and. (contact < 0 .or. contact > 1)) call st%set(CPDI_ERR_INPUT, 'contact is a flag: 0 or 1')
     if (st%ok() .and. .not. (friction >= 0.0_wp .and. friction <= huge(1.0_wp))) &
@@ -288,8 +294,12 @@ contains
     type(sim_t), pointer :: s
     integer(ik) :: ip
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before their state')
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'state arrays must have one column per particle')
+    if (st%ok()) then
+      if (.not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before their state')
+    end if
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'state arrays must have one column per particle')
+    end if
     if (st%ok()) then
       if (.not. (finite_all(reshape(v, [2*n])) .and. finite_all(reshape(F, [4*n])) .and. abs(t) <= huge(t))) then
         call st%set(CPDI_ERR_INPUT, 'state contains NaN or Inf; give finite values')
@@ -379,8 +389,12 @@ contains
     type(status_t) :: st
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before body forces')
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body force needs one column per particle')
+    if (st%ok()) then
+      if (.not. s%has_particles) call st%set(CPDI_ERR_STATE, 'set particles before body forces')
+    end if
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'body force needs one column per particle')
+    end if
     if (st%ok() .and. .not. finite_all(reshape(b, [2*n]))) &
       call st%set(CPDI_ERR_INPUT, 'body force contains NaN or Inf')
     if (st%ok()) s%p%bf = b
@@ -486,8 +500,12 @@ contains
     vol = 0.0_wp
     r = 0.0_wp
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. s%has_particles) call st%set(CPDI_ERR_STATE, 'no particles set')
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
+    if (st%ok()) then
+      if (.not. s%has_particles) call st%set(CPDI_ERR_STATE, 'no particles set')
+    end if
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
+    end if
     if (st%ok()) then
       x = s%p%x
       v = s%p%v
@@ -626,10 +644,14 @@ contains
     u = 0.0_wp
     v = 0.0_wp
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
-      call st%set(CPDI_ERR_STATE, 'no face velocities: they exist once an incompressible run has been prepared')
-    if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
-      call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    if (st%ok()) then
+      if (.not. allocated(s%inc%mc%cell)) &
+        call st%set(CPDI_ERR_STATE, 'no face velocities: they exist once an incompressible run has been prepared')
+    end if
+    if (st%ok()) then
+      if (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2)) &
+        call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    end if
     if (st%ok()) then
       do j = 1, ny + 1
         k0 = s%inc%mc%lo(1) + (s%inc%mc%lo(2) + j - 2)*s%inc%mc%nn(1)
@@ -657,11 +679,17 @@ contains
     call lookup(handle, s, st)
     ! the grid exists from the start (a snapshot at t = 0); once it does, preparing again
     ! would clear its water marks, so only a run that has not been prepared is
-    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) call sim_prepare(s, st)
-    if (st%ok() .and. .not. allocated(s%inc%mc%cell)) &
-      call st%set(CPDI_ERR_STATE, 'no pressure grid: only incompressible runs (solver.fluid = "incompressible") have one')
-    if (st%ok() .and. (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2))) &
-      call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    if (st%ok()) then
+      if (.not. allocated(s%inc%mc%cell)) call sim_prepare(s, st)
+    end if
+    if (st%ok()) then
+      if (.not. allocated(s%inc%mc%cell)) &
+        call st%set(CPDI_ERR_STATE, 'no pressure grid: only incompressible runs (solver.fluid = "incompressible") have one')
+    end if
+    if (st%ok()) then
+      if (nx /= s%g%ncell(1) .or. ny /= s%g%ncell(2)) &
+        call st%set(CPDI_ERR_INPUT, 'nx, ny must be the grid''s cell counts')
+    end if
     if (st%ok()) then
       do j = 1, ny
         k0 = s%inc%mc%lo(1) + (s%inc%mc%lo(2) + j - 2)*s%inc%mc%nn(1)
@@ -682,8 +710,10 @@ contains
     type(status_t) :: st
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
-    if (st%ok() .and. s%opt%fluid /= FLUID_INCOMPRESSIBLE) &
-      call st%set(CPDI_ERR_STATE, 'the face-lattice transfer belongs to fluid = incompressible; set it first')
+    if (st%ok()) then
+      if (s%opt%fluid /= FLUID_INCOMPRESSIBLE) &
+        call st%set(CPDI_ERR_STATE, 'the face-lattice transfer belongs to fluid = incompressible; set it first')
+    end if
     if (st%ok()) call sim_prepare(s, st)
     if (st%ok()) call incomp_transfer_cycle(s%inc, s%g, s%p, st)
     call finish(st, ierr, msg)
@@ -783,7 +813,9 @@ contains
     type(sim_t), pointer :: s
     info = 0.0_wp
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. s%has_grid) call st%set(CPDI_ERR_STATE, 'no grid set')
+    if (st%ok()) then
+      if (.not. s%has_grid) call st%set(CPDI_ERR_STATE, 'no grid set')
+    end if
     if (st%ok()) info = [s%g%gorig(1), s%g%gorig(2), s%g%h, real(s%g%nn(1), wp), real(s%g%nn(2), wp), &
                          real(GRID_PAD, wp)]
     call finish(st, ierr, msg)
@@ -808,8 +840,12 @@ contains
     gy = 0.0_wp
     call lookup(handle, s, st)
     if (st%ok()) call sim_prepare(s, st)
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
-    if (st%ok() .and. ns < s%sh%ns) call st%set(CPDI_ERR_INPUT, 'ns is smaller than the slots of this shape')
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
+    end if
+    if (st%ok()) then
+      if (ns < s%sh%ns) call st%set(CPDI_ERR_INPUT, 'ns is smaller than the slots of this shape')
+    end if
     if (st%ok()) then
       call shape_compute(s%g, s%p, s%sh, bad, fail, st)
       if (st%ok() .and. bad /= 0) then
@@ -840,7 +876,9 @@ contains
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
     if (st%ok()) call sim_prepare(s, st)
-    if (st%ok() .and. n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'val must have one entry per particle')
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'val must have one entry per particle')
+    end if
     if (st%ok() .and. (mode < 1 .or. mode > 2)) call st%set(CPDI_ERR_INPUT, 'mode must be 1 (cell) or 2 (nodal)')
     if (st%ok() .and. .not. finite_all(val)) call st%set(CPDI_ERR_INPUT, 'val contains NaN or Inf')
     if (st%ok()) then
