@@ -18,7 +18,11 @@ program memcheck_driver
   integer(c_int) :: nprow, nscal
   real(c_double), allocatable :: ps(:, :), ss(:)
   real(c_double), allocatable :: fu(:, :), fv(:, :), cp(:, :), cf(:, :), ft(:, :), vt(:, :)
-  integer(c_int), allocatable :: ck(:, :)
+  integer(c_int), allocatable :: ck(:, :), gi(:, :), gmask(:)
+  integer(c_int) :: gmask2(1, 1)
+  real(c_double) :: p11(1, 1), f11(1, 1)
+  real(c_double), allocatable :: gs(:, :), gw(:, :), ggx(:, :), ggy(:, :), gval(:), fa(:, :), fb(:, :)
+  real(c_double) :: info6(6)
 
   failures = 0
   dx = 0.01_c_double
@@ -90,6 +94,24 @@ program memcheck_driver
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
   call cpdi_free(h, ierr, msg); call expect_ok('free')
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('freed handle')
+  ! every routine whose checks read the simulation after the lookup: a freed handle is an error,
+  ! not a read through a null pointer (Fortran need not short-circuit .and.; -O0 does not)
+  allocate (gs(4, 1), gw(4, 1), ggx(4, 1), ggy(4, 1), gi(4, 1), gval(1), gmask(1), fa(2, 1), fb(1, 2))
+  gmask = 1
+  gval = 0.0_c_double
+  call cpdi_set_bodies(h, 1, [1_c_int], 0, 0.0_c_double, 0.9_c_double, ierr, msg); call expect_error('freed bodies')
+  call cpdi_set_state(h, 1, vo(:, 1:1), f(:, 1:1), 0.0_c_double, ierr, msg); call expect_error('freed state')
+  call cpdi_set_body_force(h, 1, vo(:, 1:1), ierr, msg); call expect_error('freed body force')
+  call cpdi_get_state(h, 1, xo(:, 1:1), vo(:, 1:1), f(:, 1:1), s(:, 1:1), volo(1:1), ro(:, 1:1), ierr, msg)
+  call expect_error('freed get state')
+  call cpdi_face_velocity(h, 1, 1, fa, fb, ierr, msg); call expect_error('freed face velocity')
+  call cpdi_grid_pressure(h, 1, 1, p11, f11, gmask2, ierr, msg)
+  call expect_error('freed grid pressure')
+  call cpdi_transfer_cycle(h, ierr, msg); call expect_error('freed transfer cycle')
+  call cpdi_grid_info(h, info6, ierr, msg); call expect_error('freed grid info')
+  call cpdi_get_shape(h, 1, 4, gi, gw, ggx, ggy, ierr, msg); call expect_error('freed shape')
+  call cpdi_project(h, 1, 1, gmask, gval, ierr, msg); call expect_error('freed project')
+  deallocate (gs, gw, ggx, ggy, gi, gval, gmask, fa, fb)
   ! the water column alone, incompressible: a few steps and the grid queries
   nw = 160
   call cpdi_new(h, ierr, msg); call expect_ok('new incompressible')
