@@ -137,7 +137,7 @@ def cmd_mutate(args) -> int:
 
     return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
                          resume=args.resume, only=args.only, report_only=args.report_only,
-                         ids=args.ids)
+                         ids=args.ids, fast_timeout=args.fast_timeout, full_timeout=args.full_timeout)
 
 
 def _add_cluster_args(p: argparse.ArgumentParser, what: str) -> None:
@@ -212,6 +212,12 @@ def parser() -> argparse.ArgumentParser:
                     help="run exactly these mutants (ids as in a report's mutants.json, e.g. cpdi_fsi:126:3d364ae9); "
                          "with --only FILE, only those files are scanned; the report goes to <date>-<sha>-ids/")
     mu.add_argument("--report-only", action="store_true", help="with --resume: summarise the journal, run nothing")
+    mu.add_argument("--fast-timeout", type=float, default=120.0, metavar="S",
+                    help="time limit per mutant for the fast tier, at least 3x the unmutated tree's (a hang counts "
+                         "as killed, and the report says so)")
+    mu.add_argument("--full-timeout", type=float, default=1200.0, metavar="S",
+                    help="time limit per mutant for the full make test (raise it on a loaded machine: a slow run "
+                         "must not count as a hang)")
     mu.set_defaults(func=cmd_mutate)
     return p
 
