@@ -160,7 +160,7 @@ contains
     logical :: musl, simple
 
     musl = s%opt%update == UPDATE_MUSL
-    simple = s%g%nf == 1 .and. .not. s%any_rigid .and. size(s%g%gv, 2) == 0
+    simple = s%g%nf == 1 .and. .not. s%any_rigid
     call block_start(blk)
     do while (block_next(blk, c))
       call chunk_range(c, s%p%n, lo, hi)
