@@ -20,7 +20,7 @@ program memcheck_driver
   real(c_double), allocatable :: fu(:, :), fv(:, :), cp(:, :), cf(:, :), ft(:, :), vt(:, :)
   integer(c_int), allocatable :: ck(:, :), gi(:, :), gmask(:)
   integer(c_int) :: gmask2(1, 1)
-  real(c_double) :: p11(1, 1), f11(1, 1)
+  real(c_double) :: p11(1, 1), f11(1, 1), p4(4), u4(4), v4(4), p6(6), u6(6), v6(6)
   real(c_double), allocatable :: gs(:, :), gw(:, :), ggx(:, :), ggy(:, :), gval(:), fa(:, :), fb(:, :)
   real(c_double) :: info6(6)
 
@@ -129,6 +129,16 @@ program memcheck_driver
   call cpdi_face_velocity(h, 40, 20, fu, fv, ierr, msg); call expect_ok('face velocity')
   call cpdi_grid_pressure(h, 40, 20, cp, cf, ck, ierr, msg); call expect_ok('grid pressure')
   call cpdi_free(h, ierr, msg); call expect_ok('free incompressible')
+  ! the test grid's own checks (Python's wrapper refuses short grids before the call; a Fortran
+  ! caller has only these): a grid short both ways, or with no positive cell size, is an error
+  call cpdi_poisson_project(2, 2, [(2_c_int, k = 1, 4)], [(0.0_c_double, k = 1, 4)], [(0.0_c_double, k = 1, 4)], &
+                            [(0.0_c_double, k = 1, 4)], 0.01_c_double, 1000.0_c_double, 1.0_c_double, 0.0_c_double, &
+                            1.0e-12_c_double, 10, p4, u4, v4, nsteps, t, ierr, msg)
+  call expect_error('test grid short both ways')
+  call cpdi_poisson_project(2, 3, [(2_c_int, k = 1, 6)], [(0.0_c_double, k = 1, 6)], [(0.0_c_double, k = 1, 6)], &
+                            [(0.0_c_double, k = 1, 6)], 0.01_c_double, 1000.0_c_double, 1.0_c_double, 0.0_c_double, &
+                            1.0e-12_c_double, 10, p6, u6, v6, nsteps, t, ierr, msg)
+  call expect_error('test grid short in x')
   ! the elastic block alone with contact on: one body, one velocity field, the walls under the
   ! volume constraint (their volumes were once read out of bounds for a single field)
   call cpdi_new(h, ierr, msg); call expect_ok('new one body')
