@@ -130,6 +130,22 @@ def test_water_step_is_the_advective_limit():
     assert after == pytest.approx(H / (np.sqrt(2) * vmax + np.sqrt(G * H)), rel=1e-14)
 
 
+def test_incompressible_water_carries_no_deformation():
+    """The incompressible water has no deformation gradient of its own (its volume is held by the
+    pressure, not by J): a water block given a deformed F, sheared both ways and stretched, has
+    F = I and its initial volumes and domains again once it steps."""
+    x = lattice((0.2, 0.0), (0.6, 0.3))
+    sim = water(x, np.zeros_like(x), (20, 16), ("slip",) * 4)
+    vol0, r0 = sim.state()["vol"], sim.state()["r"]
+    sim.set_state(np.zeros_like(x), np.tile([1.1, 0.2, 0.3, 0.9], (len(x), 1)), 0.0)
+    sim.advance(1e9, max_steps=1, land=False)
+    st = sim.state()
+    sim.close()
+    np.testing.assert_array_equal(st["F"], np.tile([1.0, 0.0, 0.0, 1.0], (len(x), 1)))
+    np.testing.assert_array_equal(st["vol"], vol0)
+    np.testing.assert_array_equal(st["r"], r0)
+
+
 def test_flip_step_bounds_the_grid_velocity_that_moves_the_particles():
     """The particles move with the grid's velocity (x += dt v_grid), so the CFL step must
     bound it, not only the particles' own velocities, which a FLIP blend keeps apart from the
