@@ -82,3 +82,22 @@ def test_work_of_gravity_and_body_force_is_their_potential_released(update, rigi
     assert steps > 100 and np.abs(dx).max() > 0.02
     assert d["gravity_work"] == pytest.approx((m[:, None] * g * dx).sum(), rel=1e-12)
     assert d["body_force_work"] == pytest.approx((m[:, None] * b * dx).sum(), rel=1e-12)
+
+
+@pytest.mark.parametrize(("gravity", "v0"), [((0.0, -9.81), (0.0, -1.0)), ((0.0, -9.81), (0.0, 3.0)),
+                                             ((-9.81, 0.0), (-1.0, 0.0)), ((-9.81, 0.0), (3.0, 0.0))],
+                         ids=["falling", "thrown_up", "falling_along_x", "thrown_against_x"])
+def test_local_damping_opposes_the_motion_by_alpha_times_the_force(gravity, v0):
+    """Cundall's local damping, f - alpha |f| sign(v) on every node: a free block in uniform motion
+    under gravity alone (no stress, no walls) feels f = m g at each node, so it accelerates at
+    g (1 - alpha) while it moves along g and decelerates at g (1 + alpha) while it moves against
+    it, in either axis: v = v0 + (g - alpha |g| sign(v0)) t for every particle."""
+    alpha = 0.1
+    parts = block_particles((0.4, 0.4), (0.6, 0.6), H, 2, 1000.0, v=v0)
+    sim = make_sim(parts, ncell=(40, 40), h=H, origin=(-0.5, -0.5), gravity=gravity, damping=alpha, cfl=0.3)
+    _, t = sim.advance(0.1)
+    v = sim.state()["v"]
+    sim.close()
+    g, v0 = np.asarray(gravity), np.asarray(v0)
+    expected = v0 + (g - alpha * np.abs(g) * np.sign(v0)) * t
+    np.testing.assert_allclose(v, np.tile(expected, (len(v), 1)), rtol=0, atol=1e-9 * np.abs(expected).max())
