@@ -1,11 +1,16 @@
 """The mutation report names the Fortran unit test that killed a mutant, and what it found
-broken (the first FAIL line it printed), from meson's test log."""
+broken (the first FAIL line it printed), from meson's test log; the two tiers together are
+exactly `make test`'s test files."""
 
 from __future__ import annotations
 
 import json
 
-from harness.mutation.execute import meson_failure
+from pathlib import Path
+
+from harness.mutation.execute import FAST_TESTS, FULL_FIRST, full_tier, meson_failure
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _log(tmp_path, *tests):
@@ -28,3 +33,14 @@ def test_a_crash_without_a_fail_line_names_the_result(tmp_path):
 
 def test_no_log_still_names_meson(tmp_path):
     assert meson_failure(tmp_path / "missing.json") == "meson test (Fortran unit tests)"
+
+
+def test_fast_and_full_tiers_partition_the_test_files():
+    """A survivor of the fast tier is 'survived make test' only if the full tier runs every other
+    test file once: the tiers are disjoint and together every tests/test_*.py."""
+    every = sorted(str(p.relative_to(REPO)) for p in (REPO / "tests").glob("test_*.py"))
+    full = full_tier(REPO)
+    assert all((REPO / t).is_file() for t in FAST_TESTS + FULL_FIRST)
+    assert len(set(full)) == len(full) and not set(full) & set(FAST_TESTS)
+    assert sorted(full + FAST_TESTS) == every
+    assert full[:len(FULL_FIRST)] == FULL_FIRST

@@ -31,6 +31,10 @@ FAST_TESTS = [  # most specific first: with -x the first failure names the killi
     "tests/test_vibrating_bar.py", "tests/test_bad_input.py", "tests/test_incompressible_input.py",
     "tests/test_determinism.py", "tests/test_contact.py",
 ]
+# The full tier is the rest of `make test` (the fast tier already passed, and so did the Fortran
+# unit tests): every other tests/test_*.py, those that have killed mutants the fast tier missed
+# first (with -x a kill there ends the run early; a survivor runs them all either way).
+FULL_FIRST = ["tests/test_memcheck.py", "tests/test_checkpoint.py", "tests/test_verify_quick.py"]
 FAILED = re.compile(r"^(?:FAILED|ERROR) (\S+)", re.M)
 
 
@@ -88,17 +92,19 @@ class Worker:
             shutil.copy2(so, self.dir / "harness" / so.name)
         return True
 
-    def tier(self, tests: list[str] | None, timeout: float) -> tuple[str, str, float]:
-        """Run the Fortran unit tests, then pytest (-x) on `tests` (None: all). Returns
+    def tier(self, tests: list[str], timeout: float, fortran: bool = True) -> tuple[str, str, float]:
+        """Run the Fortran unit tests (if fortran), then pytest (-x) on `tests`. Returns
         (verdict: 'pass' | 'fail' | 'timeout', the first failing test, seconds)."""
-        meson = str(self.repo / ".venv" / "bin" / "meson")
-        code, out, t1 = _run([meson, "test", "-C", "build", "--no-rebuild", "-q"], self.dir, timeout)
-        if code is None:
-            return "timeout", "meson test (Fortran unit tests)", t1
-        if code != 0:
-            return "fail", meson_failure(self.dir / "build" / "meson-logs" / "testlog.json"), t1
+        t1 = 0.0
+        if fortran:
+            meson = str(self.repo / ".venv" / "bin" / "meson")
+            code, out, t1 = _run([meson, "test", "-C", "build", "--no-rebuild", "-q"], self.dir, timeout)
+            if code is None:
+                return "timeout", "meson test (Fortran unit tests)", t1
+            if code != 0:
+                return "fail", meson_failure(self.dir / "build" / "meson-logs" / "testlog.json"), t1
         py = str(self.repo / ".venv" / "bin" / "python")
-        present = [t for t in tests or [] if (self.dir / t).is_file()]
+        present = [t for t in tests if (self.dir / t).is_file()]
         cmd = [py, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-o", "addopts=-rfE", *present]
         code, out, t2 = _run(cmd, self.dir, max(timeout - t1, 10))
         if code is None:
@@ -107,6 +113,13 @@ class Worker:
             return "pass", "", t1 + t2
         m = FAILED.search(out)
         return "fail", m.group(1) if m else f"pytest exit {code}", t1 + t2
+
+
+def full_tier(work: Path) -> list[str]:
+    """The test files of `make test` outside the fast tier, FULL_FIRST first."""
+    rest = sorted(str(p.relative_to(work)) for p in (work / "tests").glob("test_*.py"))
+    rest = [t for t in rest if t not in FAST_TESTS and t not in FULL_FIRST]
+    return [t for t in FULL_FIRST if (work / t).is_file()] + rest
 
 
 def meson_failure(log: Path) -> str:
@@ -197,7 +210,7 @@ def _test_one(w: Worker, m: Mutant, fast_timeout: float, full_timeout: float, fu
         verdict, test, _ = w.tier(FAST_TESTS, fast_timeout)
         row["tier"] = "fast"
         if verdict == "pass" and full:
-            verdict, test, _ = w.tier(None, full_timeout)
+            verdict, test, _ = w.tier(full_tier(w.dir), full_timeout, fortran=False)
             row["tier"] = "full"
         row.update(verdict={"fail": "killed", "timeout": "killed (time limit)", "pass": "survived"}[verdict],
                    killed_by=test)
