@@ -5,9 +5,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from harness import paths, provenance
 from harness.mutation import execute, generate, summary
 
 REPO = Path(__file__).resolve().parents[2]
@@ -16,6 +18,7 @@ REPO = Path(__file__).resolve().parents[2]
 def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool = True, resume: str | None = None,
          fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None,
          report_only: bool = False, ids: list[str] | None = None) -> int:
+    t0 = time.perf_counter()
     rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "fortran", "tests"], cwd=REPO, capture_output=True,
@@ -49,12 +52,17 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     out = Path(resume) if resume else REPO / "reports" / "mutation" / name
     out.mkdir(parents=True, exist_ok=True)
     print(f"mutate: {meta['sampling']}; report in {out}", file=sys.stderr)
+    meta["provenance"] = provenance.collect(REPO, paths.build_dir())
     if report_only:  # summarise what the journal holds so far (an interrupted run), run nothing
         rows = execute.journal_rows(out / "journal.jsonl", chosen)
         meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
     else:
-        rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs or len(os.sched_getaffinity(0)),
-                               fast_timeout, full_timeout, full, execute.say)
+        jobs = jobs or len(os.sched_getaffinity(0))
+        before = len(execute.journal_rows(out / "journal.jsonl", chosen))
+        rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs, fast_timeout, full_timeout, full,
+                               execute.say)
+        meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - before,
+                       "resumed_with": before}
     sc = summary.write(out, rows, meta)["overall"]
     print(f"mutate: kill rate {100 * sc['kill_rate']:.1f} % of {sc['counted']} counted mutants "
           f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "

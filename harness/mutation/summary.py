@@ -66,6 +66,7 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
           f"({o['killed']} killed; {o['no_compile']} did not compile and {o['equivalent']} are marked "
           f"equivalent: neither counts). Killed by the fast tier: {_pct(o['killed_by_fast_tier'])} of the killed. "
           f"{o['time_limit']} were killed by the time limit (a hang counts as killed).", "",
+          *_run_lines(meta),
           "| file | mutants | counted | killed | kill rate | fast tier share |", "|---|---|---|---|---|---|"]
     md += [f"| {f} | {c['mutants']} | {c['counted']} | {c['killed']} | {_pct(c['kill_rate'])} | "
            f"{_pct(c['killed_by_fast_tier'])} |" for f, c in sc["files"].items()]
@@ -89,6 +90,22 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
     return sc
 
 
+def _run_lines(meta: dict) -> list[str]:
+    """How long the run took and on what (markdown lines), from meta's run and provenance."""
+    out = []
+    r = meta.get("run")
+    if r:
+        resumed = f" (resumed: {r['resumed_with']} were tested before)" if r["resumed_with"] else ""
+        out.append(f"Run: {r['seconds'] / 60:.1f} min wall time for {r['tested']} mutants with {r['jobs']} "
+                   f"parallel scratch builds{resumed}.")
+    p = meta.get("provenance")
+    if p:
+        out.append(f"Provenance: {p.get('git_sha', '?')[:12]} (dirty: {p.get('dirty')}), {p.get('compiler')}, "
+                   f"flags `{p.get('fflags')}`, Python {p.get('python')}, numpy {p.get('numpy', '?')}, "
+                   f"LAPACK {p.get('lapack')}; {p.get('cpu')} ({p.get('nproc')} cores); {p.get('date')}.")
+    return [*out, ""] if out else []
+
+
 def _html(out: Path, sc: dict, rows: list[dict], eq: dict, meta: dict) -> None:
     o = sc["overall"]
     e = html.escape
@@ -98,6 +115,7 @@ def _html(out: Path, sc: dict, rows: list[dict], eq: dict, meta: dict) -> None:
             f"<p><b>Kill rate {_pct(o['kill_rate'])}</b> of {o['counted']} counted mutants; fast tier "
             f"{_pct(o['killed_by_fast_tier'])} of the killed; {o['no_compile']} did not compile; "
             f"{o['equivalent']} marked equivalent; {o['time_limit']} killed by the time limit.</p>",
+            *(f"<p>{e(line)}</p>" for line in _run_lines(meta) if line),
             "<table><tr><th>file</th><th>mutants</th><th>counted</th><th>killed</th><th>kill rate</th></tr>"]
     body += [f"<tr><td>{e(f)}</td><td>{c['mutants']}</td><td>{c['counted']}</td><td>{c['killed']}</td>"
              f"<td>{_pct(c['kill_rate'])}</td></tr>" for f, c in sc["files"].items()]
