@@ -95,7 +95,7 @@ regen-gold: build
 mutate: build
 	@$(PY) -m pip install -q --disable-pip-version-check \
 	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
-	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME))
+	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME)) $(if $(VERIFY),--verify)
 
 mutate-harness: build
 	@$(PY) -m pip install -q --disable-pip-version-check \

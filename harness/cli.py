@@ -137,7 +137,8 @@ def cmd_mutate(args) -> int:
 
     return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
                          resume=args.resume, only=args.only, report_only=args.report_only,
-                         ids=args.ids, fast_timeout=args.fast_timeout, full_timeout=args.full_timeout)
+                         ids=args.ids, fast_timeout=args.fast_timeout, full_timeout=args.full_timeout,
+                         verify_timeout=args.verify_timeout if args.verify else None)
 
 
 def _add_cluster_args(p: argparse.ArgumentParser, what: str) -> None:
@@ -218,6 +219,11 @@ def parser() -> argparse.ArgumentParser:
     mu.add_argument("--full-timeout", type=float, default=1200.0, metavar="S",
                     help="time limit per mutant for the full make test (raise it on a loaded machine: a slow run "
                          "must not count as a hang)")
+    mu.add_argument("--verify", action="store_true",
+                    help="also run make verify (about 45 min each on 2 cores) on every survivor of make test, "
+                         "those in a resumed journal included: the kill rate with make verify")
+    mu.add_argument("--verify-timeout", type=float, default=7200.0, metavar="S",
+                    help="time limit per mutant for make verify")
     mu.set_defaults(func=cmd_mutate)
     return p
 

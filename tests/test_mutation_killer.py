@@ -8,7 +8,8 @@ import json
 
 from pathlib import Path
 
-from harness.mutation.execute import FAST_TESTS, FULL_FIRST, full_tier, meson_failure
+from harness.mutation.execute import FAST_TESTS, FULL_FIRST, full_tier, meson_failure, verify_failure
+from harness.mutation.summary import score
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -44,3 +45,26 @@ def test_fast_and_full_tiers_partition_the_test_files():
     assert len(set(full)) == len(full) and not set(full) & set(FAST_TESTS)
     assert sorted(full + FAST_TESTS) == every
     assert full[:len(FULL_FIRST)] == FULL_FIRST
+
+
+def test_make_verify_names_the_failed_check_or_the_regressed_metric():
+    out = ("check                result  verdict\nhydrostatic_locking  PASS    ok\n"
+           "dam_break            FAIL    front position 12 % off\n"
+           "REGRESSION: dam_break.front_error = 0.12 vs gold 0.01 (tolerance 0.005) worse\n")
+    assert verify_failure(1, out) == "make verify: dam_break FAIL"
+    assert verify_failure(1, "REGRESSION: sloshing.period = 1.2 vs gold 1.1\n") == \
+        "make verify: REGRESSION: sloshing.period"
+    assert verify_failure(-9, "killed\n") == "make verify: exit -9"
+
+
+def test_kill_rates_by_make_test_and_with_make_verify():
+    """A mutant killed only by the verify tier counts for the rate with make verify, not for
+    make test's; no-compile mutants count for neither."""
+    def row(i, verdict, tier):
+        return {"id": f"cpdi_x:{i}:0", "file": "fortran/src/cpdi_x.f90", "verdict": verdict, "tier": tier}
+    rows = [row(1, "killed", "fast"), row(2, "killed", "full"), row(3, "killed", "verify"),
+            row(4, "survived", "verify"), row(5, "no-compile", "")]
+    o = score(rows)["overall"]
+    assert (o["counted"], o["killed"], o["killed_with_verify"], o["verify_runs"]) == (4, 2, 3, 2)
+    assert o["kill_rate"] == 0.5 and o["kill_rate_with_verify"] == 0.75
+    assert o["killed_by_fast_tier"] == 0.5

@@ -114,12 +114,29 @@ class Worker:
         m = FAILED.search(out)
         return "fail", m.group(1) if m else f"pytest exit {code}", t1 + t2
 
+    def verify(self, timeout: float) -> tuple[str, str, float]:
+        """`make verify` on the built mutant (every check, compared with gold)."""
+        code, out, t = _run([str(self.repo / ".venv" / "bin" / "python"), "-m", "harness", "verify"], self.dir,
+                            timeout)
+        if code is None:
+            return "timeout", "make verify (time limit)", t
+        return ("pass", "", t) if code == 0 else ("fail", verify_failure(code, out), t)
+
+
+VERIFY_FAILED = re.compile(r"^(REGRESSION: \S+|\S+\s+FAIL\b)", re.M)
+
 
 def full_tier(work: Path) -> list[str]:
     """The test files of `make test` outside the fast tier, FULL_FIRST first."""
     rest = sorted(str(p.relative_to(work)) for p in (work / "tests").glob("test_*.py"))
     rest = [t for t in rest if t not in FAST_TESTS and t not in FULL_FIRST]
     return [t for t in FULL_FIRST if (work / t).is_file()] + rest
+
+
+def verify_failure(code: int, out: str) -> str:
+    """What `harness verify` found broken: its first failing check or regressed gold metric."""
+    m = VERIFY_FAILED.search(out)
+    return "make verify: " + (" ".join(m.group(1).split()) if m else f"exit {code}")
 
 
 def meson_failure(log: Path) -> str:
@@ -149,13 +166,19 @@ def journal_rows(journal: Path, mutants: list[Mutant]) -> list[dict]:
 
 
 def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
-            full_timeout: float, full: bool, progress) -> list[dict]:
-    """Test every mutant not yet in the journal; returns all journal rows (old and new)."""
+            full_timeout: float, full: bool, progress, verify_timeout: float | None = None) -> list[dict]:
+    """Test every mutant not yet in the journal; returns all journal rows (old and new). With
+    verify_timeout, a survivor of the whole `make test` (also one journalled before) then runs
+    `make verify` (the verify tier), limited to verify_timeout s."""
     done = {r["id"]: r for r in journal_rows(journal, mutants)}
+    marked = set(equivalent_ids())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
     # in a fixed shuffled order, not file by file: a run cut short then leaves a random part of the
     # sample tested (its partial report, --report-only, speaks for every file), not the first files
     todo = [m for m in mutants if m.id not in done]
     random.Random(len(mutants)).shuffle(todo)
+    if verify_timeout:   # survivors of make test journalled before: the verify tier only
+        todo += [m for m in mutants if m.id in done and m.id not in marked and done[m.id]["verdict"] == "survived"
+                 and done[m.id].get("tier") == "full"]
     if not todo:
         return [done[m.id] for m in mutants if m.id in done]
     root = Path(os.environ.get("CPDI_MUTATE_SCRATCH", "/tmp")) / f"cpdi-mutate-{rev[:12]}"
@@ -173,12 +196,11 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
         free.put(w)
     lock = threading.Lock()
 
-    marked = set(equivalent_ids())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
-
     def one(m: Mutant) -> dict:
         w = free.get()
         try:
-            return _test_one(w, m, fast_timeout, full_timeout, full and m.id not in marked)
+            return _test_one(w, m, fast_timeout, full_timeout, full and m.id not in marked,
+                             verify_timeout if m.id not in marked else None, done.get(m.id))
         finally:
             free.put(w)
 
@@ -193,7 +215,11 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
     return [done[m.id] for m in mutants if m.id in done]
 
 
-def _test_one(w: Worker, m: Mutant, fast_timeout: float, full_timeout: float, full: bool) -> dict:
+def _test_one(w: Worker, m: Mutant, fast_timeout: float, full_timeout: float, full: bool,
+              verify_timeout: float | None = None, survived: dict | None = None) -> dict:
+    """Build mutant m in worker w and run the tiers (fast, then full if full and it survived, then
+    verify if verify_timeout and it survived again). `survived`: its journal row as a survivor of
+    make test, so that only the verify tier runs."""
     path = w.dir / m.file
     original = path.read_text(encoding="utf-8")
     lines = original.splitlines(keepends=True)
@@ -207,11 +233,18 @@ def _test_one(w: Worker, m: Mutant, fast_timeout: float, full_timeout: float, fu
         if built is not True:
             row.update(verdict="no-compile" if built is False else "timeout-build")
             return row
-        verdict, test, _ = w.tier(FAST_TESTS, fast_timeout)
-        row["tier"] = "fast"
-        if verdict == "pass" and full:
-            verdict, test, _ = w.tier(full_tier(w.dir), full_timeout, fortran=False)
-            row["tier"] = "full"
+        if survived:
+            verdict, test = "pass", ""
+            row["tier"] = survived["tier"]
+        else:
+            verdict, test, _ = w.tier(FAST_TESTS, fast_timeout)
+            row["tier"] = "fast"
+            if verdict == "pass" and full:
+                verdict, test, _ = w.tier(full_tier(w.dir), full_timeout, fortran=False)
+                row["tier"] = "full"
+        if verdict == "pass" and row["tier"] == "full" and verify_timeout:
+            verdict, test, _ = w.verify(verify_timeout)
+            row["tier"] = "verify"
         row.update(verdict={"fail": "killed", "timeout": "killed (time limit)", "pass": "survived"}[verdict],
                    killed_by=test)
         return row

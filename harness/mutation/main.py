@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool = True, resume: str | None = None,
          fast_timeout: float = 120.0, full_timeout: float = 1200.0, only: list[str] | None = None,
-         report_only: bool = False, ids: list[str] | None = None) -> int:
+         report_only: bool = False, ids: list[str] | None = None, verify_timeout: float | None = None) -> int:
     t0 = time.perf_counter()
     rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.strip()
@@ -41,7 +41,8 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
         sampling = f"the {len(chosen)} mutants asked for by id (--ids)"
     meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed, "sampling": sampling,
             "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
-                     + ("then the full make test for survivors" if full else "only")}
+                     + ("then the rest of make test for survivors" if full else "only")
+                     + ("; make verify for make test's survivors" if verify_timeout else "")}
     stale = summary.stale_marks({m.id for ms in every.values() for m in ms}, files)
     if stale:
         meta["stale_marks"] = stale
@@ -60,7 +61,7 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
         jobs = jobs or len(os.sched_getaffinity(0))
         before = len(execute.journal_rows(out / "journal.jsonl", chosen))
         rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs, fast_timeout, full_timeout, full,
-                               execute.say)
+                               execute.say, verify_timeout)
         meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - before,
                        "resumed_with": before}
     sc = summary.write(out, rows, meta)["overall"]

@@ -30,15 +30,21 @@ def equivalent_ids() -> dict[str, str]:
 
 def score(rows: list[dict]) -> dict:
     """Kill rates over the mutants that count (compiled, not marked equivalent), overall and per
-    file, and the share of the killed ones that the fast tier killed."""
+    file: by `make test` (kill_rate: the fast and full tiers), and by make test and `make verify`
+    (the verify tier, run on make test's survivors with --verify); the share of the killed ones
+    that the fast tier killed."""
     eq = equivalent_ids()
 
     def counts(rs):
         live = [r for r in rs if r["verdict"] in (*KILLED, "survived") and r["id"] not in eq]
-        killed = [r for r in live if r["verdict"] in KILLED]
+        every_kill = [r for r in live if r["verdict"] in KILLED]
+        killed = [r for r in every_kill if r.get("tier") != "verify"]
         fast = [r for r in killed if r.get("tier") == "fast"]
+        verified = [r for r in live if r.get("tier") == "verify"]
         return {"mutants": len(rs), "counted": len(live), "killed": len(killed),
                 "kill_rate": len(killed) / len(live) if live else float("nan"),
+                "verify_runs": len(verified), "killed_with_verify": len(every_kill),
+                "kill_rate_with_verify": len(every_kill) / len(live) if live else float("nan"),
                 "killed_by_fast_tier": len(fast) / len(killed) if killed else float("nan"),
                 "no_compile": sum(r["verdict"] == "no-compile" for r in rs),
                 "equivalent": sum(r["id"] in eq for r in rs),
@@ -66,11 +72,12 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
           f"({o['killed']} killed; {o['no_compile']} did not compile and {o['equivalent']} are marked "
           f"equivalent: neither counts). Killed by the fast tier: {_pct(o['killed_by_fast_tier'])} of the killed. "
           f"{o['time_limit']} were killed by the time limit (a hang counts as killed).", "",
+          *_verify_lines(o),
           *_run_lines(meta),
           "| file | mutants | counted | killed | kill rate | fast tier share |", "|---|---|---|---|---|---|"]
     md += [f"| {f} | {c['mutants']} | {c['counted']} | {c['killed']} | {_pct(c['kill_rate'])} | "
            f"{_pct(c['killed_by_fast_tier'])} |" for f, c in sc["files"].items()]
-    surv = [r for r in rows if r["verdict"] == "survived" and r["id"] not in eq]
+    surv = [r for r in rows if (r["verdict"] == "survived" or r.get("tier") == "verify") and r["id"] not in eq]
     wrong = [r for r in rows if r["id"] in eq and r["verdict"] in KILLED]
     if wrong:   # a test told them apart: the mark is wrong (they are run through the fast tier only)
         md += ["", f"**{len(wrong)} mutants marked equivalent were killed** (check their marks in "
@@ -79,8 +86,10 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
         md += ["", f"**{len(meta['stale_marks'])} marks in harness/mutation/equivalent.toml name no mutant of "
                "this revision** (their line moved or changed; re-check and update them): "
                + ", ".join(f"`{i}`" for i in meta["stale_marks"])]
-    md += ["", f"## Survivors ({len(surv)})", ""]
-    md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`" for r in surv]
+    md += ["", f"## Survivors of make test ({len(surv)})", ""]
+    md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`"
+           + (f" (killed by {r['killed_by']})" if r["verdict"] in KILLED else
+              " (survived make verify too)" if r.get("tier") == "verify" else "") for r in surv]
     md += ["", "## Every mutant", "", "| mutant | rule | verdict | killed by | s |", "|---|---|---|---|---|"]
     md += [f"| `{r['file']}:{r['line']}` | `{r['rule'].replace('|', '/')}` | "
            f"{'equivalent' if r['id'] in eq else r['verdict']} | {r['killed_by']} | {r['seconds']:.0f} |"
@@ -88,6 +97,14 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
     (out / "summary.md").write_text("\n".join(md) + "\n")
     _html(out, sc, rows, eq, meta)
     return sc
+
+
+def _verify_lines(o: dict) -> list[str]:
+    """The kill rate with `make verify` as well, where the verify tier ran (markdown lines)."""
+    if not o["verify_runs"]:
+        return []
+    return [f"**With make verify: {_pct(o['kill_rate_with_verify'])}** ({o['killed_with_verify']} killed; "
+            f"make verify ran on {o['verify_runs']} survivors of make test).", ""]
 
 
 def _run_lines(meta: dict) -> list[str]:
