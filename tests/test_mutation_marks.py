@@ -46,3 +46,15 @@ def test_every_committed_mark_names_a_mutant_of_the_current_sources():
     files = generate.sources(repo)
     ids = {m.id for f in files for m in generate.file_mutants(repo, f)}
     assert summary.stale_marks(ids, files) == []
+
+
+def test_the_notes_list_every_mark_with_its_reason():
+    """docs/notes/mutation_equivalents.md lists every marked mutant with its reason (the issue's
+    bar: the notes say what was marked and why)."""
+    from pathlib import Path
+
+    notes = (Path(__file__).resolve().parents[1] / "docs" / "notes" / "mutation_equivalents.md").read_text()
+    rows = {line.split("`")[1]: line for line in notes.splitlines() if line.startswith("| `cpdi_")}
+    for mark, reason in summary.equivalent_ids().items():
+        assert mark in rows, f"{mark} is marked but not listed in docs/notes/mutation_equivalents.md"
+        assert reason.replace("|", "\\|")[:60] in rows[mark], f"{mark}: the notes give another reason"
