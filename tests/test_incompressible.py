@@ -367,7 +367,9 @@ def test_volume_correction_target_is_met():
 
 
 # -- e) the CG solver --------------------------------------------------------------------
-def test_cg_reaches_its_tolerance_and_reports_it_honestly(rng):
+def surface_tank_problem(rng):
+    """A 32 x 28 tank with a surface below its top and random faces: (cell, fill, u, v, the
+    right-hand side b on the water cells, water mask); h = 0.05, dt = 0.01, rho = 1000."""
     nx, ny = 32, 28
     cell = tank(nx, ny)
     cell[1:-1, ny - 4:] = AIR  # a surface below the grid's top
@@ -379,7 +381,12 @@ def test_cg_reaches_its_tolerance_and_reports_it_honestly(rng):
     uw = np.where(wu, 0.0, u)  # the walls' zero normal velocity, as the solver sets it first
     vw = np.where(wv, 0.0, v)
     w = cell == WATER
-    b = rho * h**2 / dt * (-divergence(uw, vw, h))[w]
+    return cell, fill, u, v, rho * h**2 / dt * (-divergence(uw, vw, h))[w], w
+
+
+def test_cg_reaches_its_tolerance_and_reports_it_honestly(rng):
+    cell, fill, u, v, b, w = surface_tank_problem(rng)
+    h, dt, rho = 0.05, 0.01, 1000.0
     its = []
     for tol in (1e-6, 1e-10):
         p, _, _, iters, resid = project(cell, fill, u, v, dt=dt, rho=rho, h=h, tol=tol)
@@ -393,6 +400,29 @@ def test_cg_reaches_its_tolerance_and_reports_it_honestly(rng):
     # an iterative solve that stops at its tolerance: fewer iterations for the looser one
     # (measured 22 and 31), and far fewer than the unknowns (690; CG's exact-arithmetic bound)
     assert 1 <= its[0] < its[1] < w.sum() // 4
+
+
+@pytest.mark.parametrize("tol", [0.9, 1e-6])
+def test_cg_does_not_depend_on_the_scale_of_the_flow(rng, tol):
+    """A linear solve stopped at a relative residual: scaling the faces by 2^k scales b and p by
+    2^k exactly (powers of two round exactly) and changes nothing else, down to a right-hand side
+    of norm about 1/2 and below, and for a loose tolerance too. p = 0 has relative residual 1, so
+    every solve takes at least one iteration; the true residual of the returned p honours tol.
+    (A first residual computed as ||b||**||b|| instead of 1 stopped the solve at p = 0 for
+    ||b|| ~ 1/2 and tol = 0.9.)"""
+    cell, fill, u, v, b, w = surface_tank_problem(rng)
+    k0 = -int(np.ceil(np.log2(np.linalg.norm(b)))) - 1      # 2^k0 ||b|| in [1/4, 1/2)
+    base = None
+    for k in (0, k0, k0 - 4, k0 + 3):
+        s = 2.0**k
+        p, _, _, iters, resid = project(cell, fill, s * u, s * v, dt=0.01, rho=1000.0, h=0.05, tol=tol)
+        true = np.linalg.norm(s * b - apply_op(cell, fill, p)[w]) / np.linalg.norm(s * b)
+        assert iters >= 1 and resid <= tol and true <= 1.01 * tol + 1e-13, (k, iters, resid, true)
+        if base is None:
+            base = (p, iters, resid)
+        else:
+            assert (iters, resid) == base[1:], f"scale 2^{k}"
+            np.testing.assert_array_equal(p, s * base[0], err_msg=f"scale 2^{k}")
 
 
 def test_mic0_cg_iterations_grow_as_the_square_root_of_the_grid(rng):
