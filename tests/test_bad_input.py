@@ -84,6 +84,12 @@ def test_freed_handle_and_state_errors():
     sim = Simulation()
     with pytest.raises(CpdiError, match="before stepping"):
         sim.advance(1.0)
+    sim.set_grid((0, 0), (10, 10), 0.1)   # a grid alone, then without particles: still refused
+    with pytest.raises(CpdiError, match="before stepping"):
+        sim.advance(1.0)
+    sim.set_materials([{"model": "hencky", "density": 1000.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+    with pytest.raises(CpdiError, match="before stepping"):
+        sim.advance(1.0)
     h = sim._handle
     sim.close()
     from harness.solver import _call
@@ -92,11 +98,17 @@ def test_freed_handle_and_state_errors():
         _call("cpdi_advance", h, 1.0, 10)
 
 
-def test_unknown_material_index():
+@pytest.mark.parametrize("indices, named", [((3,), "particle 1 has material 4 but only 1"),
+                                             ((-1,), "particle 1 has material 0 but only 1"),
+                                             ((0, -1, 3), "particle 2 has material 0 but only 1")])
+def test_unknown_material_index(indices, named):
+    """Material indices beyond the list, below it, and both in one particle set (each check
+    alone must see its own; the first bad particle is named)."""
     parts = good_parts()
-    parts["mat"][:] = 3
+    parts["mat"][:] = 0
+    parts["mat"][:len(indices)] = indices
     sim = make_sim(parts, ncell=(10, 10), h=0.1)
-    with pytest.raises(CpdiError, match="material 4 but only 1"):
+    with pytest.raises(CpdiError, match=named):
         sim.advance(0.01)
     sim.close()
 
