@@ -76,12 +76,19 @@ def test_work_of_gravity_and_body_force_is_their_potential_released(update, rigi
     sim = make_sim(parts, ncell=(20, 20), h=H, gravity=tuple(g), update=update, materials=materials)
     b = np.column_stack([np.full(len(x), 2.0), 1.0 + x[:, 0]])
     sim.set_body_force(b)
-    steps, _ = sim.advance(0.1)
-    dx, d = sim.state()["x"] - x, sim.diagnostics()
+    v0 = parts["v"].copy()
+    steps, t = sim.advance(0.1)
+    st, d = sim.state(), sim.diagnostics()
+    dx = st["x"] - x
     sim.close()
     assert steps > 100 and np.abs(dx).max() > 0.02
     assert d["gravity_work"] == pytest.approx((m[:, None] * g * dx).sum(), rel=1e-12)
     assert d["body_force_work"] == pytest.approx((m[:, None] * b * dx).sum(), rel=1e-12)
+    # and the forces that did the work are these: the free block's momentum grows by
+    # t sum m (g + b) (internal forces cancel; the rigid slab, apart from it, is held)
+    blk = parts["mat"] == 0
+    dp = (m[blk, None] * (st["v"][blk] - v0[blk])).sum(axis=0)
+    np.testing.assert_allclose(dp, t * (m[blk, None] * (g + b[blk])).sum(axis=0), rtol=1e-10)
 
 
 @pytest.mark.parametrize(("gravity", "v0"), [((0.0, -9.81), (0.0, -1.0)), ((0.0, -9.81), (0.0, 3.0)),
