@@ -160,3 +160,4 @@ def test_the_round_trip_probe_refuses_a_bad_count():
     from harness import solver
     with pytest.raises(solver.CpdiError, match="iters"):
         solver.core_round_trip(0)
+    assert math.isfinite(solver.core_round_trip(1))   # one round trip is a measurement

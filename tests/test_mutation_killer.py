@@ -8,7 +8,7 @@ import json
 
 from pathlib import Path
 
-from harness.mutation.execute import FAST_TESTS, FULL_FIRST, full_tier, meson_failure, verify_failure
+from harness.mutation.execute import FAST_TESTS, FULL_LAST, full_tier, meson_failure, verify_failure
 from harness.mutation.summary import score
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,10 +41,10 @@ def test_fast_and_full_tiers_partition_the_test_files():
     test file once: the tiers are disjoint and together every tests/test_*.py."""
     every = sorted(str(p.relative_to(REPO)) for p in (REPO / "tests").glob("test_*.py"))
     full = full_tier(REPO)
-    assert all((REPO / t).is_file() for t in FAST_TESTS + FULL_FIRST)
+    assert all((REPO / t).is_file() for t in FAST_TESTS + FULL_LAST)
     assert len(set(full)) == len(full) and not set(full) & set(FAST_TESTS)
     assert sorted(full + FAST_TESTS) == every
-    assert full[:len(FULL_FIRST)] == FULL_FIRST
+    assert full[-len(FULL_LAST):] == FULL_LAST
 
 
 def test_make_verify_names_the_failed_check_or_the_regressed_metric():
