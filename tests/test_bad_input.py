@@ -282,3 +282,18 @@ def test_grid_beyond_2e8_nodes_is_refused_before_any_allocation(ncell):
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.startswith("input ") and "more than 2e8 nodes" in out.stdout, out.stdout
+
+
+@pytest.mark.parametrize("flags", [(2, 0), (0, 2), (-1, 0), (0, -1)])
+def test_option_flags_are_zero_or_one(flags):
+    """domain_scaling and fixed_dt reach the Fortran API as integer flags; a caller other than
+    Simulation.set_options (which passes bools) can give anything: 2 and -1 are refused, alone."""
+    from harness.solver import _call
+
+    sim = Simulation()
+    iopt = np.array([2, 1, 0, 0, *flags], dtype=np.int32)
+    ropt = np.array([0.3, 0.0, -9.81, 0.0, 0.0, 1.0, 0.5, 0.0])
+    with pytest.raises(CpdiError, match="flags: 0 or 1"):
+        _call("cpdi_set_options", sim._handle, iopt, ropt)
+    _call("cpdi_set_options", sim._handle, np.array([2, 1, 0, 0, 1, 0], dtype=np.int32), ropt)
+    sim.close()

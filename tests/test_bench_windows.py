@@ -8,6 +8,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -161,3 +165,17 @@ def test_the_round_trip_probe_refuses_a_bad_count():
     with pytest.raises(solver.CpdiError, match="iters"):
         solver.core_round_trip(0)
     assert math.isfinite(solver.core_round_trip(1))   # one round trip is a measurement
+
+
+def test_the_round_trip_probe_refuses_one_thread_at_once():
+    """Under OMP_THREAD_LIMIT=1 the probe has no partner thread: it says so at once, and does not
+    first wait out its 5 s partner timeout (the lone thread must not bounce)."""
+    code = ("import time; from harness import solver\n"
+            "t = time.perf_counter()\n"
+            "try:\n    solver.core_round_trip(100)\nexcept solver.CpdiError as e:\n"
+            "    print(round(time.perf_counter() - t, 3), e)\n")
+    env = {**os.environ, "OMP_THREAD_LIMIT": "1"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60,
+                         cwd=Path(__file__).resolve().parents[1]).stdout
+    assert "needs 2 OpenMP threads" in out, out
+    assert float(out.split()[0]) < 2.5, out   # 5 s when the lone thread waits for its partner

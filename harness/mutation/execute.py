@@ -29,7 +29,7 @@ FAST_TESTS = [  # most specific first: with -x the first failure names the killi
     "tests/test_incompressible_flow.py", "tests/test_fsi_incompressible.py", "tests/test_timers.py",
     "tests/test_objectivity.py", "tests/test_conservation.py", "tests/test_rigid_and_scaling.py",
     "tests/test_vibrating_bar.py", "tests/test_bad_input.py", "tests/test_incompressible_input.py",
-    "tests/test_determinism.py", "tests/test_contact.py",
+    "tests/test_determinism.py", "tests/test_contact.py", "tests/test_bench_windows.py",
 ]
 # The full tier is the rest of `make test` (the fast tier already passed, and so did the Fortran
 # unit tests): every other tests/test_*.py, the slow ones last (with -x a kill by a quick file ends
