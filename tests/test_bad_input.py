@@ -206,6 +206,24 @@ def test_gimp_half_width_beyond_half_a_cell_is_refused():
     sim.close()
 
 
+@pytest.mark.parametrize("over, refused", [(0.0, False), (1, False), (1e-9, True)])
+def test_gimp_half_width_of_half_a_cell_is_allowed_up_to_rounding(over, refused):
+    """One particle per cell has half-width h/2 exactly in theory; computed (0.3/6 against
+    0.1/2) it may be an ulp or so above. The bound allows a relative 1e-12 of rounding: h/2 and
+    the next double above it run, h/2 (1 + 1e-9) is refused."""
+    h = 0.1
+    lp = h / 2 if over == 0.0 else (np.nextafter(h / 2, 1.0) if over == 1 else h / 2 * (1 + over))
+    parts = block_particles((0.4, 0.4), (0.6, 0.6), h, 1, 1000.0)
+    parts["r"] = np.tile([lp, 0.0, 0.0, lp], (len(parts["x"]), 1))
+    sim = make_sim(parts, ncell=(10, 10), h=h, shape="gimp")
+    if refused:
+        with pytest.raises(CpdiError, match="GIMP half-widths"):
+            sim.advance(0.001)
+    else:
+        sim.advance(0.001)
+    sim.close()
+
+
 def test_stress_that_overflows_is_reported_naming_the_particle():
     """A finite, valid state whose stress is not finite: neo-Hookean F = diag(1e160, 1e-160)
     (det F = 1) has b11 = 1e320 = Inf. Refreshing the stress reports it with the particle."""
