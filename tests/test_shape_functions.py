@@ -35,12 +35,16 @@ def random_particles(rng, n, shape):
     return dict(x=x, v=np.zeros((n, 2)), mass=1000 * vol, vol=vol, r=r, mat=np.zeros(n, dtype=np.int32))
 
 
-@pytest.mark.parametrize("ncell", [NCELL, (14, 11)], ids=["square", "wide"])
+@pytest.mark.parametrize("ncell, lift", [(NCELL, 0.0), ((14, 11), 0.0), ((12, 30), 1.8)],
+                         ids=["square", "wide", "tall"])
 @pytest.mark.parametrize("shape", ["mpm", "gimp", "cpdi"])
-def test_partition_of_unity_and_linear_reproduction(shape, ncell, rng):
+def test_partition_of_unity_and_linear_reproduction(shape, ncell, lift, rng):
     """(A wide grid as well: with a square one, node numbering by the wrong axis's count,
-    i + (j - 1) nn(2) for i + (j - 1) nn(1), gives the same nodes; make mutate had it survive.)"""
+    i + (j - 1) nn(2) for i + (j - 1) nn(1), gives the same nodes; make mutate had it survive.
+    And a tall one with the particles lifted above row nn(1): clamping a row index by the
+    column count survived the square and wide grids.)"""
     parts = random_particles(rng, 400, shape)
+    parts["x"][:, 1] += lift
     sim = make_sim(parts, ncell=ncell, h=H, shape=shape)
     idx, w, gx, gy = sim.shape_functions()
     xi = sim.grid_info().node_xy(idx)  # (n, slots, 2)
