@@ -315,3 +315,13 @@ def test_option_flags_are_zero_or_one(flags):
         _call("cpdi_set_options", sim._handle, iopt, ropt)
     _call("cpdi_set_options", sim._handle, np.array([2, 1, 0, 0, 1, 0], dtype=np.int32), ropt)
     sim.close()
+
+
+def test_a_step_that_underflows_to_zero_is_refused():
+    """cfl may be any number in (0, 1]; the smallest positive double makes cfl h / c round to
+    0 s. Such a step must be refused with the fix named, not taken: steps of 0 s never reach
+    t_end (the run would only stop at max_steps, having done nothing)."""
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1, cfl=5e-324)
+    with pytest.raises(CpdiError, match="time step is zero"):
+        sim.advance(0.01, max_steps=5)
+    sim.close()
