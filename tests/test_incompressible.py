@@ -455,6 +455,33 @@ def test_cg_iteration_limit_is_a_clear_error(rng):
     assert float(m.group(1)) > 1e-10  # the residual it names is the one that missed the tolerance
 
 
+@pytest.mark.parametrize("nc", [10, 20])
+def test_water_without_a_surface_stops_at_the_automatic_cg_limit(nc):
+    """Water filling a closed tank (slip walls, no air, packed 10 % close) has no free surface:
+    its pressure is defined up to a constant and the over-packed water's volume target cannot be
+    met, so the solve cannot converge. With cg_max_iterations = 0 the run stops after the
+    automatic limit, 4 sqrt(cells) + 200 (docs/incompressible_water.md; O(sqrt n) like the
+    iterations MIC(0)-CG needs, test above), and the message names the fix."""
+    h = 1.0 / nc
+    d = h / 2 / 1.1
+    xx, yy = np.meshgrid(np.arange(d / 2, 1.0 - d / 4, d), np.arange(d / 2, 1.0 - d / 4, d), indexing="ij")
+    x = np.column_stack([xx.ravel(), yy.ravel()])
+    n = len(x)
+    vol = np.full(n, (h / 2) ** 2)
+    sim = Simulation()
+    sim.set_grid((0.0, 0.0), (nc, nc), h, ("slip",) * 4)
+    sim.set_materials([{"model": "newtonian_fluid", "density": 1000.0, "bulk_modulus": 1.0, "viscosity": 0.0}])
+    sim.set_particles(x, np.zeros((n, 2)), 1000.0 * vol, vol, np.tile([d / 2, 0.0, 0.0, d / 2], (n, 1)),
+                      np.zeros(n, int))
+    sim.set_options(shape="cpdi", gravity=(0.0, -9.81), fluid="incompressible")
+    with pytest.raises(CpdiError) as ei:
+        sim.advance(0.05)
+    sim.close()
+    m = re.search(r"after (\d+) CG iterations", str(ei.value))
+    assert m and int(m.group(1)) == int(4 * np.sqrt(nc * nc)) + 200, str(ei.value)
+    assert "cg_max_iterations" in str(ei.value)
+
+
 # -- f) APIC transfer --------------------------------------------------------------------
 OMEGA = 2.0  # [rad/s]
 L_ROWS = slice(8, 12)  # rows of L = [L11, L21, L12, L22] in the full state (after x, v, F)
