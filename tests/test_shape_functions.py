@@ -41,8 +41,9 @@ def random_particles(rng, n, shape):
 def test_partition_of_unity_and_linear_reproduction(shape, ncell, lift, rng):
     """(A wide grid as well: with a square one, node numbering by the wrong axis's count,
     i + (j - 1) nn(2) for i + (j - 1) nn(1), gives the same nodes; make mutate had it survive.
-    And a tall one with the particles lifted above row nn(1): clamping a row index by the
-    column count survived the square and wide grids.)"""
+    And a tall one with the particles lifted above row nn(1), where only a tall grid tells the
+    axes' counts apart. The fast path's row clamped by the column count, make mutate's
+    shape:327, still passes here: those particles take the general path, same weights.)"""
     parts = random_particles(rng, 400, shape)
     parts["x"][:, 1] += lift
     sim = make_sim(parts, ncell=ncell, h=H, shape=shape)
