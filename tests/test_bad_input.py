@@ -45,6 +45,20 @@ def test_particle_outside_grid():
     sim.close()
 
 
+@pytest.mark.parametrize("projection", ["cell", "nodal"])
+def test_particle_outside_grid_with_projection_is_refused_before_the_first_step(projection):
+    """The volumetric projection sets up its operator when the run is prepared, before any step
+    checks the particles: a particle outside the grid is refused there, by name."""
+    parts = good_parts()
+    parts["x"][3] = [5.0, 5.0]
+    sim = make_sim(parts, ncell=(10, 10), h=0.1, projection=projection)
+    with pytest.raises(CpdiError, match="particle 4 at .* lies outside the grid; enlarge") as ei:
+        sim.advance(0.01)
+    assert ei.value.kind == "outside"
+    np.testing.assert_array_equal(sim.state()["x"], parts["x"])   # no step was taken
+    sim.close()
+
+
 @pytest.mark.parametrize("field", ["x", "v", "vol", "mass"])
 def test_nan_in_particle_data(field):
     parts = good_parts()

@@ -194,7 +194,8 @@ def test_coupled_flow_is_symmetric_under_exchanging_x_and_y():
     xw = xw[~((xw[:, 0] > lo[0]) & (xw[:, 0] < hi[0]) & (xw[:, 1] > lo[1]) & (xw[:, 1] < hi[1]))]
     runs = swapped_runs(xw, lattice(lo, hi, d), (0.4, 0.1), "mixture")
     assert_swap_symmetric(runs)
-    assert np.abs(runs[0][0]["v"][len(xw):, 0]).mean() < 0.2, "the block must have pushed the water for the test to mean anything"
+    assert np.abs(runs[0][0]["v"][len(xw):, 0]).mean() < 0.2, \
+        "the block must have pushed the water for the test to mean anything"
 
 
 def test_batty_coupling_is_symmetric_under_exchanging_x_and_y_at_the_walls():

@@ -5,7 +5,6 @@ exactly `make test`'s test files."""
 from __future__ import annotations
 
 import json
-
 from pathlib import Path
 
 from harness.mutation.execute import FAST_TESTS, FULL_LAST, full_tier, meson_failure, verify_failure

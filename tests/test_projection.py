@@ -4,6 +4,7 @@ and 'none' leaving the solver untouched bit for bit."""
 import numpy as np
 import pytest
 
+from harness.solver import CpdiError
 from tests.conftest import block_particles, make_sim
 
 H = 0.1
@@ -89,6 +90,27 @@ def test_mask_leaves_other_particles_alone(rng):
     out = sim.project(theta, "cell", mask)
     np.testing.assert_array_equal(out[~mask], theta[~mask])
     assert not np.allclose(out[mask], theta[mask])
+    sim.close()
+
+
+@pytest.mark.parametrize("shape", ["mpm", "gimp", "cpdi"])
+@pytest.mark.parametrize("mode", ["cell", "nodal"])
+def test_a_particle_outside_the_grid_is_refused_not_projected(shape, mode):
+    """A quadrature point beyond the grid has no cell or node to be projected in: `project`
+    must say which particle is outside, not answer with the value of the clamped edge cell."""
+    parts = block_particles((0.3, 0.3), (0.9, 0.9), H, 2, 1000.0)
+    sim = make_sim(parts, ncell=(10, 10), h=H, shape=shape)
+    g = sim.grid_info()
+    top = g.origin[1] + (g.nn[1] - 1) * g.h
+    parts["x"][5] = [0.5, top + 0.25 * H]   # above the padded grid's top node row
+    sim.set_particles(**parts)
+    with pytest.raises(CpdiError, match="particle 6 at .* lies outside the grid; enlarge") as ei:
+        sim.project(np.ones(len(parts["x"])), mode)
+    assert ei.value.kind == "outside"
+    parts["x"][5] = [0.5, 0.5]   # back inside: the same simulation projects again
+    sim.set_particles(**parts)
+    out = sim.project(np.full(len(parts["x"]), 2.5), mode)
+    np.testing.assert_allclose(out, 2.5, rtol=1e-13 if mode == "cell" else 1e-8)   # as for 3.25 above
     sim.close()
 
 

@@ -10,12 +10,12 @@ module cpdi_api
                          CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
-  use cpdi_shape, only: shape_compute, shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
+  use cpdi_shape, only: shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
   use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
-  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt
+  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID
@@ -832,8 +832,7 @@ contains
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
-    integer(ik) :: bad, fail, a, ip
-    character(len=200) :: buf
+    integer(ik) :: a, ip
     idx = 1
     w = 0.0_wp
     gx = 0.0_wp
@@ -843,21 +842,16 @@ contains
     if (st%ok()) then
       if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'output arrays must have one column per particle')
     end if
+    if (st%ok()) call sim_check_inside(s, st)
     if (st%ok()) then
       if (ns < s%sh%ns) call st%set(CPDI_ERR_INPUT, 'ns is smaller than the slots of this shape')
     end if
     if (st%ok()) then
-      call shape_compute(s%g, s%p, s%sh, bad, fail, st)
-      if (st%ok() .and. bad /= 0) then
-        write (buf, '(a,i0,a)') 'particle ', bad, ' support is outside the grid or its domain is inverted'
-        call st%set(CPDI_ERR_INPUT, trim(buf))
-      else if (st%ok()) then
-        do ip = 1, n
-          do a = 1, shape_count(s%sh, ip)
-            call shape_slot(s%sh, ip, a, idx(a, ip), w(a, ip), gx(a, ip), gy(a, ip))
-          end do
+      do ip = 1, n
+        do a = 1, shape_count(s%sh, ip)
+          call shape_slot(s%sh, ip, a, idx(a, ip), w(a, ip), gx(a, ip), gy(a, ip))
         end do
-      end if
+      end do
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_get_shape
@@ -881,6 +875,7 @@ contains
     end if
     if (st%ok() .and. (mode < 1 .or. mode > 2)) call st%set(CPDI_ERR_INPUT, 'mode must be 1 (cell) or 2 (nodal)')
     if (st%ok() .and. .not. finite_all(val)) call st%set(CPDI_ERR_INPUT, 'val contains NaN or Inf')
+    if (st%ok()) call sim_check_inside(s, st)
     if (st%ok()) then
       if (.not. allocated(s%proj%qc)) then
         call projection_alloc(s%proj, s%g, s%p%n, st)

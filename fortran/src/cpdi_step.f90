@@ -41,7 +41,7 @@ module cpdi_step
   implicit none
   private
 
-  public :: sim_prepare, sim_step, sim_stable_dt, probe_cap
+  public :: sim_prepare, sim_step, sim_stable_dt, probe_cap, sim_check_inside
 
 contains
 
@@ -83,13 +83,8 @@ contains
       call prepare_incompressible(s, st)
       return
     end if
-    ! (Fortran does not short-circuit .or.: test allocation before asking for a size)
-    realloc = .not. allocated(s%sh%idx)
-    if (.not. realloc) realloc = s%sh%kind /= s%opt%shape .or. size(s%sh%w, 2) /= s%p%n
-    if (realloc) then
-      call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
-      if (.not. st%ok()) return
-    end if
+    call ensure_shape(s, st)
+    if (.not. st%ok()) return
     realloc = .not. allocated(s%sp%perm)
     if (.not. realloc) realloc = size(s%sp%perm) /= s%p%n .or. size(s%sp%start) /= s%g%nn(2) + 2
     if (realloc) then
@@ -114,12 +109,59 @@ contains
     s%diag(10) = sum(s%p%m)
     s%kprev = [1_ik, s%g%nnodes]   ! the whole grid may hold values: the next step clears it all
     if (s%smax < 0.0_wp) then   ! stress and signal speed of the current state
-      if (s%opt%projection /= PROJ_NONE) &
-        call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
+      if (s%opt%projection /= PROJ_NONE) then   ! its operator needs every support in the grid
+        call sim_check_inside(s, st)
+        if (st%ok()) call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st)
+      end if
       if (st%ok()) call stress_update(s, st)
       if (st%ok() .and. s%opt%projection /= PROJ_NONE) call project_mean_stress(s, st)
     end if
   end subroutine sim_prepare
+
+  subroutine ensure_shape(s, st)
+    !! Storage of the run's interpolation weights, (re)allocated for its shape and particles.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    logical :: realloc
+    ! (Fortran does not short-circuit .or.: test allocation before asking for a size)
+    realloc = .not. allocated(s%sh%idx)
+    if (.not. realloc) realloc = s%sh%kind /= s%opt%shape .or. size(s%sh%w, 2) /= s%p%n
+    if (realloc) call shape_alloc(s%sh, s%opt%shape, s%p%n, st)
+  end subroutine ensure_shape
+
+  subroutine sim_check_inside(s, st)
+    !! Weights of the current configuration (serially), refusing it if a particle's support
+    !! is outside the grid or a CPDI domain is inverted. Every step makes this check first;
+    !! the entry points that use the configuration outside a step make it here (the
+    !! projection at preparation, cpdi_project, cpdi_get_shape): without it, a particle
+    !! beyond the grid would be projected in the clamped edge cell, silently.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    integer(ik) :: bad, fail
+    call ensure_shape(s, st)
+    if (.not. st%ok()) return
+    call shape_compute(s%g, s%p, s%sh, bad, fail, st)
+    if (st%ok() .and. bad /= 0) call refuse_shape(s, bad, fail, '', 'lies outside the grid', st)
+  end subroutine sim_check_inside
+
+  subroutine refuse_shape(s, bad, fail, prefix, verb, st)
+    !! The error for particle bad, whose weights failed with SHAPE_FAIL_* cause fail:
+    !! prefix (where), verb ('has left the grid' in a step, 'lies outside the grid' before one).
+    type(sim_t), intent(in) :: s
+    integer(ik), intent(in) :: bad, fail
+    character(len=*), intent(in) :: prefix, verb
+    type(status_t), intent(inout) :: st
+    character(len=300) :: buf
+    if (fail == SHAPE_FAIL_INVERTED) then
+      write (buf, '(2a,i0,a,2es12.4,a)') prefix, 'CPDI domain of particle ', bad, ' at (', s%p%x(:, bad), &
+        ') is inverted (r1 x r2 <= 0); reduce cfl or refine the grid'
+      call st%set(CPDI_ERR_DOMAIN, trim(buf))
+    else
+      write (buf, '(2a,i0,a,2es12.4,4a)') prefix, 'particle ', bad, ' at (', s%p%x(:, bad), ') ', verb, &
+        '; enlarge [grid] size, close the wall, or enable domain_scaling for stretched CPDI domains'
+      call st%set(CPDI_ERR_OUTSIDE, trim(buf))
+    end if
+  end subroutine refuse_shape
 
   subroutine prepare_incompressible(s, st)
     !! The incompressible water model's checks and storage; signal speed of the state.
@@ -270,16 +312,8 @@ contains
     if (.not. all_ok(st)) return
     if (all_int(bad) /= 0) then
       !$omp single
-      if (fail == SHAPE_FAIL_INVERTED) then
-        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': CPDI domain of particle ', bad, &
-          ' at (', s%p%x(:, bad), ') is inverted (r1 x r2 <= 0); reduce cfl or refine the grid'
-        call st%set(CPDI_ERR_DOMAIN, trim(buf))
-      else
-        write (buf, '(a,i0,a,i0,a,2es12.4,a)') 'step ', s%steps + 1, ': particle ', bad, ' at (', &
-          s%p%x(:, bad), ') has left the grid; enlarge [grid] size, close the wall, '// &
-          'or enable domain_scaling for stretched CPDI domains'
-        call st%set(CPDI_ERR_OUTSIDE, trim(buf))
-      end if
+      write (buf, '(a,i0,a)') 'step ', s%steps + 1, ': '
+      call refuse_shape(s, bad, fail, trim(buf)//' ', 'has left the grid', st)
       !$omp end single
       return
     end if
