@@ -66,6 +66,46 @@ def test_cellwise_field_is_reproduced_by_cell_projection(rng, grid):
     sim.close()
 
 
+def last_inside(lo, h, ncell):
+    """The largest coordinate the weights place inside the last of ncell cells from lo
+    ((x - lo)/h < ncell): the grid's last node line, or the float just below it."""
+    x = lo + ncell * h
+    while not (x - lo) / h < ncell:
+        x = np.nextafter(x, -np.inf)
+    return x
+
+
+def test_cell_projection_uses_the_cells_the_weights_use_up_to_the_grids_edges(rng):
+    """The cell projection is the mass-weighted mean over the particles in a cell, and the cell
+    of a point is the one its weights are built on, also for points on the padded grid's edge
+    lines. A point on the last node line can round to just inside the last cell ((1.2 + 0.2)/0.1
+    < 14); the projection must put it there with its neighbours, not in a cell beyond the grid."""
+    sim = make_sim(block_particles((0.3, 0.3), (0.5, 0.5), H, 1, 1000.0), ncell=(10, 10), h=H, shape="mpm")
+    g = sim.grid_info()
+    sim.close()
+    ncell = np.array(g.nn) - 1
+    hi = [last_inside(g.origin[d], g.h, ncell[d]) for d in range(2)]
+    inner = g.origin + (ncell - 0.5) * g.h    # centres of the last cells' row and column
+    edges = [[hi[0], 0.5], [inner[0], 0.5], [0.5, hi[1]], [0.5, inner[1]], [hi[0], hi[1]], [inner[0], inner[1]],
+             [g.origin[0], 0.5], [g.origin[0] + 0.5 * g.h, 0.5], [0.5, g.origin[1]], [0.5, g.origin[1] + 0.5 * g.h]]
+    parts = block_particles((0.3, 0.3), (0.9, 0.9), H, 2, 1000.0)
+    n0 = len(parts["x"])
+    parts["x"] = np.vstack([parts["x"] + rng.uniform(-0.2, 0.2, (n0, 2)) * H, edges])
+    for k in ("v", "mass", "vol", "r", "mat"):
+        parts[k] = np.concatenate([parts[k], parts[k][:len(edges)]])
+    parts["mass"] = parts["mass"] * rng.uniform(0.5, 1.5, len(parts["mass"]))
+    sim = make_sim(parts, ncell=(10, 10), h=H, shape="mpm")
+    idx = sim.shape_functions()[0].min(axis=1)            # each point's lowest node: its cell's corner
+    ci, cj = idx % g.nn[0], idx // g.nn[0]
+    assert ci[n0] == ncell[0] - 1 and cj[n0 + 2] == ncell[1] - 1   # the edge points are in the last cells
+    cell = ci + cj * ncell[0]
+    field = rng.normal(size=len(cell))
+    m = parts["mass"]
+    mean = np.bincount(cell, m * field) / np.bincount(cell, m).clip(1e-300)
+    np.testing.assert_allclose(sim.project(field, "cell"), mean[cell], rtol=0, atol=1e-13)
+    sim.close()
+
+
 @pytest.mark.parametrize("grid", GRIDS)
 def test_nodal_field_is_reproduced_by_nodal_projection(rng, grid):
     """With point quadrature (MPM) a particle field sampled from a bilinear nodal field is in
