@@ -67,3 +67,17 @@ def test_kill_rates_by_make_test_and_with_make_verify():
     assert (o["counted"], o["killed"], o["killed_with_verify"], o["verify_runs"]) == (4, 2, 3, 2)
     assert o["kill_rate"] == 0.5 and o["kill_rate_with_verify"] == 0.75
     assert o["killed_by_fast_tier"] == 0.5
+
+
+def test_a_resumed_verify_run_counts_the_survivors_it_verified():
+    """A run resumed with --verify tests no new mutant but takes the journal's survivors of make
+    test through make verify; the report's run line must say how many, not '0 mutants'."""
+    from harness.mutation.main import verified_now
+    from harness.mutation.summary import _run_lines
+
+    old = {"a": {"id": "a", "tier": "full", "verdict": "survived"}, "b": {"id": "b", "tier": "fast"},
+           "c": {"id": "c", "tier": "verify", "verdict": "killed"}}
+    rows = [{"id": "a", "tier": "verify", "verdict": "killed"}, old["b"], old["c"]]
+    assert verified_now(old, rows) == 1
+    line = _run_lines({"run": {"seconds": 600, "jobs": 1, "tested": 0, "resumed_with": 3, "verified": 1}})[0]
+    assert "make verify on 1 survivors" in line and "resumed: 3" in line

@@ -59,16 +59,21 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
         meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
     else:
         jobs = jobs or len(os.sched_getaffinity(0))
-        before = len(execute.journal_rows(out / "journal.jsonl", chosen))
+        old = {r["id"]: r for r in execute.journal_rows(out / "journal.jsonl", chosen)}
         rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs, fast_timeout, full_timeout, full,
                                execute.say, verify_timeout)
-        meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - before,
-                       "resumed_with": before}
+        meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - len(old),
+                       "resumed_with": len(old), "verified": verified_now(old, rows)}
     sc = summary.write(out, rows, meta)["overall"]
     print(f"mutate: kill rate {100 * sc['kill_rate']:.1f} % of {sc['counted']} counted mutants "
           f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "
           f"{100 * sc['killed_by_fast_tier']:.1f} % of the killed; {out / 'index.html'}")
     return 0
+
+
+def verified_now(old: dict[str, dict], rows: list[dict]) -> int:
+    """Mutants this run took through the verify tier (a resumed run's survivors of make test too)."""
+    return sum(r.get("tier") == "verify" and old.get(r["id"], {}).get("tier") != "verify" for r in rows)
 
 
 def _committed(rev: str) -> Path:

@@ -113,8 +113,9 @@ def _run_lines(meta: dict) -> list[str]:
     r = meta.get("run")
     if r:
         resumed = f" (resumed: {r['resumed_with']} were tested before)" if r["resumed_with"] else ""
-        out.append(f"Run: {r['seconds'] / 60:.1f} min wall time for {r['tested']} mutants with {r['jobs']} "
-                   f"parallel scratch builds{resumed}.")
+        verified = f", make verify on {r['verified']} survivors" if r.get("verified") else ""
+        out.append(f"Run: {r['seconds'] / 60:.1f} min wall time for {r['tested']} mutants{verified} with "
+                   f"{r['jobs']} parallel scratch builds{resumed}.")
     p = meta.get("provenance")
     if p:
         out.append(f"Provenance: {p.get('git_sha', '?')[:12]} (dirty: {p.get('dirty')}), {p.get('compiler')}, "
