@@ -109,6 +109,9 @@ memcheck: venv
 	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(DEBUG_BUILD) cpdi_memcheck > $(DEBUG_BUILD)/compile.log 2>&1 || \
 	  { cat $(DEBUG_BUILD)/compile.log; exit 1; }
 	@ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 $(DEBUG_BUILD)/fortran/cpdi_memcheck
+	@echo "memcheck: again on 2 threads (CPDI_MIN_PER_THREAD=1: the thread teams, their calibration and probes)"
+	@CPDI_MIN_PER_THREAD=1 OMP_NUM_THREADS=2 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
+	  $(DEBUG_BUILD)/fortran/cpdi_memcheck
 
 lint: venv
 	@$(VENV)/bin/ruff check harness tests
