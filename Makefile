@@ -25,7 +25,7 @@ help:
 	@echo "make run CASE=cases/x.toml   run one case into runs/<case>/"
 	@echo "make regen-gold    rewrite reference/gold/ from a full verify (never in CI)"
 	@echo "make memcheck      Fortran-only driver under AddressSanitizer + debug flags (leaks, invalid access)"
-	@echo "make mutate        mutation testing of the Fortran core -> reports/mutation/<date>-<sha>/ (SAMPLE=n, RESUME=dir)"
+	@echo "make mutate        mutation testing of the Fortran core -> reports/mutation/<date>-<sha>/ (SAMPLE=n, RESUME=dir, IDS='id ...', VERIFY=1)"
 	@echo "make mutate-harness  mutation testing of the harness's metric and gate code (mutmut)"
 
 # ---------------------------------------------------------------- bootstrap
@@ -95,7 +95,7 @@ regen-gold: build
 mutate: build
 	@$(PY) -m pip install -q --disable-pip-version-check \
 	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
-	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME)) $(if $(VERIFY),--verify)
+	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME)) $(if $(IDS),--ids $(IDS)) $(if $(VERIFY),--verify)
 
 mutate-harness: build
 	@$(PY) -m pip install -q --disable-pip-version-check \

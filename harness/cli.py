@@ -211,7 +211,9 @@ def parser() -> argparse.ArgumentParser:
     mu.add_argument("--only", nargs="+", metavar="FILE", help="mutate only these files (fortran/src/x.f90)")
     mu.add_argument("--ids", nargs="+", metavar="ID",
                     help="run exactly these mutants (ids as in a report's mutants.json, e.g. cpdi_fsi:126:3d364ae9); "
-                         "with --only FILE, only those files are scanned; the report goes to <date>-<sha>-ids/")
+                         "with --only FILE, only those files are scanned; the report goes to <date>-<sha>-ids/. "
+                         "With --resume DIR: only these of DIR's sample run (say, one survivor through --verify), "
+                         "and DIR's report still covers the whole sample")
     mu.add_argument("--report-only", action="store_true", help="with --resume: summarise the journal, run nothing")
     mu.add_argument("--fast-timeout", type=float, default=120.0, metavar="S",
                     help="time limit per mutant for the fast tier, at least 3x the unmutated tree's (a hang counts "

@@ -81,3 +81,20 @@ def test_a_resumed_verify_run_counts_the_survivors_it_verified():
     assert verified_now(old, rows) == 1
     line = _run_lines({"run": {"seconds": 600, "jobs": 1, "tested": 0, "resumed_with": 3, "verified": 1}})[0]
     assert "make verify on 1 survivors" in line and "resumed: 3" in line
+
+
+def test_a_resumed_run_with_ids_runs_only_those_and_keeps_the_sample():
+    """--resume DIR --ids X --verify takes only X of DIR's survivors through make verify (one
+    survivor, not all of them at 45 min each); without ids, every unmarked survivor of make test
+    and every mutant not yet journalled is pending, the new ones first."""
+    from harness.mutation.execute import pending
+    from harness.mutation.generate import Mutant
+
+    ms = [Mutant(f"f:{i}:h", "fortran/src/f.f90", i, "a ==> b", "a", "b") for i in range(5)]
+    done = {"f:0:h": {"verdict": "survived", "tier": "full"}, "f:1:h": {"verdict": "survived", "tier": "full"},
+            "f:2:h": {"verdict": "killed", "tier": "fast"}, "f:3:h": {"verdict": "survived", "tier": "full"}}
+    marked = {"f:3:h"}
+    assert [m.id for m in pending(ms, done, marked, verify=False)] == ["f:4:h"]
+    assert [m.id for m in pending(ms, done, marked, verify=True)] == ["f:4:h", "f:0:h", "f:1:h"]
+    assert [m.id for m in pending(ms, done, marked, verify=True, only={"f:1:h"})] == ["f:1:h"]
+    assert pending(ms, done, marked, verify=True, only={"f:3:h"}) == []   # marked: fast tier only

@@ -166,20 +166,29 @@ def journal_rows(journal: Path, mutants: list[Mutant]) -> list[dict]:
     return [done[m.id] for m in mutants if m.id in done]
 
 
-def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
-            full_timeout: float, full: bool, progress, verify_timeout: float | None = None) -> list[dict]:
-    """Test every mutant not yet in the journal; returns all journal rows (old and new). With
-    verify_timeout, a survivor of the whole `make test` (also one journalled before) then runs
-    `make verify` (the verify tier), limited to verify_timeout s."""
-    done = {r["id"]: r for r in journal_rows(journal, mutants)}
-    marked = set(equivalent_ids())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
-    # in a fixed shuffled order, not file by file: a run cut short then leaves a random part of the
-    # sample tested (its partial report, --report-only, speaks for every file), not the first files
+def pending(mutants: list[Mutant], done: dict[str, dict], marked: set[str], verify: bool,
+            only: set[str] | None = None) -> list[Mutant]:
+    """What a run still has to do: every mutant not in the journal, in a fixed shuffled order (a
+    run cut short then leaves a random part of the sample tested, whose partial report speaks for
+    every file, not the first files); with verify, then the journalled survivors of make test
+    that are not marked (the verify tier only). `only` (ids): just these of them."""
     todo = [m for m in mutants if m.id not in done]
     random.Random(len(mutants)).shuffle(todo)
-    if verify_timeout:   # survivors of make test journalled before: the verify tier only
+    if verify:
         todo += [m for m in mutants if m.id in done and m.id not in marked and done[m.id]["verdict"] == "survived"
                  and done[m.id].get("tier") == "full"]
+    return [m for m in todo if only is None or m.id in only]
+
+
+def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: int, fast_timeout: float,
+            full_timeout: float, full: bool, progress, verify_timeout: float | None = None,
+            only: set[str] | None = None) -> list[dict]:
+    """Test every mutant not yet in the journal (of `only`, if given); returns all journal rows
+    (old and new). With verify_timeout, a survivor of the whole `make test` (also one journalled
+    before) then runs `make verify` (the verify tier), limited to verify_timeout s."""
+    done = {r["id"]: r for r in journal_rows(journal, mutants)}
+    marked = set(equivalent_ids())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
+    todo = pending(mutants, done, marked, bool(verify_timeout), only)
     if not todo:
         return [done[m.id] for m in mutants if m.id in done]
     root = Path(os.environ.get("CPDI_MUTATE_SCRATCH", "/tmp")) / f"cpdi-mutate-{rev[:12]}"

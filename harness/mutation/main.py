@@ -27,7 +27,7 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
               f"committed tree {rev[:12]} (commit first to include them)", file=sys.stderr)
     files = only or generate.sources(REPO)
     every = {f: generate.file_mutants(_committed(rev), f) for f in files}
-    if ids:  # exactly these mutants (ids from a report's mutants.json), no sample
+    if ids and not resume:  # exactly these mutants (ids from a report's mutants.json), no sample
         chosen = [m for f in files for m in every[f] if m.id in ids]
         missing = sorted(set(ids) - {m.id for m in chosen})
         if missing:
@@ -35,9 +35,13 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
                              "file:line:hash of the mutated line; a changed source line changes it)")
     else:
         chosen = generate.sample(every, sample, seed)
+        missing = sorted(set(ids or []) - {m.id for m in chosen})
+        if missing:  # --ids with --resume: run only these of the report's sample; it still covers all
+            raise SystemExit(f"error: not in the sample of {resume} (seed {seed}, {sample} mutants) at "
+                             f"{rev[:12]}: {', '.join(missing)}")
     sampling = (f"stratified sample of {len(chosen)} of {sum(map(len, every.values()))} mutants over {len(files)} "
                 f"files (share ~ sqrt of each file's count, at least 3, seed {seed})")
-    if ids:
+    if ids and not resume:
         sampling = f"the {len(chosen)} mutants asked for by id (--ids)"
     meta = {"rev": rev, "date": datetime.now(UTC).strftime("%Y-%m-%d"), "seed": seed, "sampling": sampling,
             "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
@@ -61,7 +65,9 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
         jobs = jobs or len(os.sched_getaffinity(0))
         old = {r["id"]: r for r in execute.journal_rows(out / "journal.jsonl", chosen)}
         rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs, fast_timeout, full_timeout, full,
-                               execute.say, verify_timeout)
+                               execute.say, verify_timeout, set(ids) if ids and resume else None)
+        if len(rows) < len(chosen):  # --ids on a journal that does not hold the whole sample yet
+            meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
         meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - len(old),
                        "resumed_with": len(old), "verified": verified_now(old, rows)}
     sc = summary.write(out, rows, meta)["overall"]
