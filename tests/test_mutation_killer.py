@@ -98,3 +98,24 @@ def test_a_resumed_run_with_ids_runs_only_those_and_keeps_the_sample():
     assert [m.id for m in pending(ms, done, marked, verify=True)] == ["f:4:h", "f:0:h", "f:1:h"]
     assert [m.id for m in pending(ms, done, marked, verify=True, only={"f:1:h"})] == ["f:1:h"]
     assert pending(ms, done, marked, verify=True, only={"f:3:h"}) == []   # marked: fast tier only
+
+
+def test_a_resumed_run_keeps_the_first_runs_timing_in_the_report(tmp_path):
+    """Resuming a report (say, the verify tier on its survivors) adds the new run's line; the
+    first run's rev, timing and provenance stay in the report (they are the sample's numbers)."""
+    from harness.mutation.main import earlier_runs
+    from harness.mutation.summary import _run_lines
+
+    first = {"rev": "a" * 40, "date": "2026-11-27", "provenance": {"git_sha": "a" * 40},
+             "run": {"seconds": 2820, "jobs": 2, "tested": 224, "resumed_with": 0}}
+    report = tmp_path / "mutants.json"
+    assert earlier_runs(report) == []
+    report.write_text(json.dumps({"meta": first}))
+    second = {"rev": "b" * 40, "date": "2026-11-28", "earlier": earlier_runs(report),
+              "run": {"seconds": 6600, "jobs": 2, "tested": 0, "resumed_with": 224, "verified": 2}}
+    report.write_text(json.dumps({"meta": second}))
+    assert [e["rev"] for e in earlier_runs(report)] == ["a" * 40, "b" * 40]
+    lines = _run_lines(second)
+    assert lines[0].startswith("Run: 110.0 min") and "make verify on 2 survivors" in lines[0]
+    assert lines[1] == ("Earlier run of this report (aaaaaaaaaaaa, 2026-11-27): 47.0 min wall time for 224 mutants "
+                        "with 2 parallel scratch builds.")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -56,11 +57,13 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     name = f"{meta['date']}-{rev[:12]}" + ("-ids" if ids else "")   # an id run never mixes into a sample's report
     out = Path(resume) if resume else REPO / "reports" / "mutation" / name
     out.mkdir(parents=True, exist_ok=True)
+    meta["earlier"] = earlier_runs(out / "mutants.json")
     print(f"mutate: {meta['sampling']}; report in {out}", file=sys.stderr)
     meta["provenance"] = provenance.collect(REPO, paths.build_dir())
     if report_only:  # summarise what the journal holds so far (an interrupted run), run nothing
         rows = execute.journal_rows(out / "journal.jsonl", chosen)
-        meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
+        if len(rows) < len(chosen):
+            meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
     else:
         jobs = jobs or len(os.sched_getaffinity(0))
         old = {r["id"]: r for r in execute.journal_rows(out / "journal.jsonl", chosen)}
@@ -75,6 +78,16 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
           f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "
           f"{100 * sc['killed_by_fast_tier']:.1f} % of the killed; {out / 'index.html'}")
     return 0
+
+
+def earlier_runs(report: Path) -> list[dict]:
+    """The runs a resumed report holds already (their rev, date, timing and provenance), oldest
+    first: a resumed run adds its own line to the report instead of replacing the first run's."""
+    if not report.exists():
+        return []
+    meta = json.loads(report.read_text()).get("meta", {})
+    this = [{k: meta[k] for k in ("rev", "date", "run", "provenance") if k in meta}] if "run" in meta else []
+    return meta.get("earlier", []) + this
 
 
 def verified_now(old: dict[str, dict], rows: list[dict]) -> int:

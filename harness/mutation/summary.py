@@ -116,6 +116,9 @@ def _run_lines(meta: dict) -> list[str]:
         verified = f", make verify on {r['verified']} survivors" if r.get("verified") else ""
         out.append(f"Run: {r['seconds'] / 60:.1f} min wall time for {r['tested']} mutants{verified} with "
                    f"{r['jobs']} parallel scratch builds{resumed}.")
+    for e in meta.get("earlier", []):   # the runs before a resumed one, oldest first
+        line = _run_lines({"run": e["run"]})[0].removeprefix("Run: ")
+        out.append(f"Earlier run of this report ({e['rev'][:12]}, {e['date']}): {line}")
     p = meta.get("provenance")
     if p:
         out.append(f"Provenance: {p.get('git_sha', '?')[:12]} (dirty: {p.get('dirty')}), {p.get('compiler')}, "
