@@ -62,17 +62,15 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     meta["provenance"] = provenance.collect(REPO, paths.build_dir())
     if report_only:  # summarise what the journal holds so far (an interrupted run), run nothing
         rows = execute.journal_rows(out / "journal.jsonl", chosen)
-        if len(rows) < len(chosen):
-            meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
     else:
         jobs = jobs or len(os.sched_getaffinity(0))
         old = {r["id"]: r for r in execute.journal_rows(out / "journal.jsonl", chosen)}
         rows = execute.run_all(REPO, rev, chosen, out / "journal.jsonl", jobs, fast_timeout, full_timeout, full,
                                execute.say, verify_timeout, set(ids) if ids and resume else None)
-        if len(rows) < len(chosen):  # --ids on a journal that does not hold the whole sample yet
-            meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
         meta["run"] = {"seconds": round(time.perf_counter() - t0, 1), "jobs": jobs, "tested": len(rows) - len(old),
                        "resumed_with": len(old), "verified": verified_now(old, rows)}
+    if len(rows) < len(chosen):  # an interrupted run's journal, or --ids on one not yet whole
+        meta["sampling"] += f"; partial: {len(rows)} of {len(chosen)} tested"
     sc = summary.write(out, rows, meta)["overall"]
     print(f"mutate: kill rate {100 * sc['kill_rate']:.1f} % of {sc['counted']} counted mutants "
           f"({sc['no_compile']} did not compile, {sc['equivalent']} equivalent); fast tier killed "
