@@ -154,7 +154,7 @@ SCHEMA: dict[str, Key] = {
 MATERIAL = {
     "name": Key("str", "name used by bodies", required=True),
     "model": Key("choice", "constitutive model", required=True,
-                 choices=("hencky", "neo_hookean", "newtonian_fluid", "rigid")),
+                 choices=("hencky", "neo_hookean", "newtonian_fluid", "rigid", "rigid_body")),
     "density": Key("float", "reference density", "kg/m^3", required=True, check=positive),
     "youngs_modulus": Key("float", "Young's modulus (hencky, neo_hookean)", "Pa", check=positive),
     "poisson_ratio": Key("float", "Poisson's ratio (hencky, neo_hookean)",
@@ -162,6 +162,8 @@ MATERIAL = {
     "bulk_modulus": Key("float", "bulk modulus K (newtonian_fluid)", "Pa", check=positive),
     "viscosity": Key("float", "dynamic viscosity (newtonian_fluid)", "Pa s", default=0.0, check=nonneg),
     "velocity": Key("vec2", "prescribed velocity (rigid)", "m/s", default=[0.0, 0.0]),
+    "friction": Key("float", "Coulomb friction coefficient against the walls (rigid_body)", default=0.0,
+                    check=nonneg),
     "projection": Key("bool", "takes part in the volumetric projection (default: fluids yes, solids no)"),
 }
 MODEL_NEEDS = {
@@ -169,6 +171,7 @@ MODEL_NEEDS = {
     "neo_hookean": ("youngs_modulus", "poisson_ratio"),
     "newtonian_fluid": ("bulk_modulus",),
     "rigid": (),
+    "rigid_body": (),
 }
 
 BODY = {

@@ -19,7 +19,7 @@ SHAPES = {"mpm": 0, "gimp": 1, "cpdi": 2}
 UPDATES = {"usl": 0, "musl": 1}
 WALLS = {"open": 0, "slip": 1, "noslip": 2}
 WALL_SIDES = ("left", "right", "bottom", "top")
-MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4}
+MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4, "rigid_body": 5}
 KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
@@ -173,7 +173,7 @@ class Simulation:
 
     def set_materials(self, materials: Sequence[Mapping]) -> None:
         """Materials as dicts: model plus density, youngs_modulus, poisson_ratio,
-        bulk_modulus, viscosity, velocity (as the model needs), and projection (bool:
+        bulk_modulus, viscosity, velocity, friction (as the model needs), and projection (bool:
         takes part in the volumetric projection; default true for fluids only)."""
         if len(materials) == 0:
             raise CpdiError(1, "at least one material is needed")
@@ -186,7 +186,9 @@ class Simulation:
                 raise CpdiError(1, f"material {m}: unknown model {mat.get('model')!r}; "
                                    f"use one of {sorted(MODELS)}") from None
             vel = mat.get("velocity", (0.0, 0.0))
-            props[:, m] = [mat.get("density", 0.0), mat.get("youngs_modulus", 0.0),
+            # a rigid_body's slot 2 (Young's modulus elsewhere) is its wall friction coefficient
+            e_or_mu = mat.get("friction", 0.0) if mat["model"] == "rigid_body" else mat.get("youngs_modulus", 0.0)
+            props[:, m] = [mat.get("density", 0.0), e_or_mu,
                            mat.get("poisson_ratio", 0.0), mat.get("bulk_modulus", 0.0),
                            mat.get("viscosity", 0.0), vel[0], vel[1],
                            float(mat.get("projection", mat["model"] == "newtonian_fluid"))]
@@ -325,6 +327,16 @@ class Simulation:
         """Force [N/m] of incompressible water on the solids coupled to it in the last step (the solid
         particles' momentum change by the projection over dt; zeros otherwise)."""
         return np.asarray(_call("cpdi_solid_force", self._handle), dtype=float)
+
+    RIGID_BODY_COLUMNS = ("mass", "inertia", "x", "y", "vx", "vy", "omega", "fx", "fy", "torque")
+
+    def rigid_bodies(self) -> list[dict]:
+        """The free rigid bodies (rigid_body materials) after the last step, one dict each: mass
+        [kg/m], inertia about the centre [kg m^2/m], centre x, y [m], velocity vx, vy [m/s], omega
+        [1/s], and the water's force fx, fy [N/m] and torque [N m/m] during the step (the state at
+        the step's start for mass, inertia and centre)."""
+        nb, state = _call("cpdi_rigid_bodies", self._handle, 64)
+        return [dict(zip(self.RIGID_BODY_COLUMNS, map(float, state[:, b]))) for b in range(min(int(nb), 64))]
 
     def face_velocity(self) -> tuple[np.ndarray, np.ndarray]:
         """Face velocities of an incompressible run after its last step: u (nx + 1, ny) on the

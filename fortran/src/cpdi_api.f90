@@ -37,7 +37,7 @@ module cpdi_api
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
-  public :: cpdi_solid_force, cpdi_face_velocity
+  public :: cpdi_solid_force, cpdi_face_velocity, cpdi_rigid_bodies
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
@@ -532,6 +532,33 @@ contains
     if (st%ok()) diag = s%diag
     call finish(st, ierr, msg)
   end subroutine cpdi_get_diag
+
+  subroutine cpdi_rigid_bodies(handle, nmax, nb, state, ierr, msg)
+    !! The free rigid bodies (rigid_body materials) of an incompressible run, as of its last step:
+    !! nb of them (at most nmax listed), state(:, b) = [mass, moment of inertia about the centre,
+    !! centre x, y, velocity x, y, angular velocity (after the step), the water's force x, y and
+    !! torque about the centre during the step] [kg/m, kg m^2/m, m, m/s, 1/s, N/m, N m/m].
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: nmax
+    integer(c_int), intent(out) :: nb
+    real(c_double), intent(out) :: state(10, nmax)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    integer(ik) :: b
+    nb = 0
+    state = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      nb = s%inc%rb%n
+      do b = 1, min(nb, nmax)
+        state(:, b) = [s%inc%rb%m(b), s%inc%rb%inertia(b), s%inc%rb%xc(:, b), s%inc%rb%v(:, b), s%inc%rb%w(b), &
+                       s%inc%rb%force(:, b)]
+      end do
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_rigid_bodies
 
   subroutine cpdi_solid_force(handle, f, ierr, msg)
     !! Force [N per m of depth] of incompressible water on the solids coupled to it in the last

@@ -25,6 +25,7 @@ module cpdi_fsi
   use cpdi_incompressible, only: incomp_step, COUPLING_BATTY
   use cpdi_sim, only: sim_t
   use cpdi_grid_update, only: impose_rigid
+  use cpdi_rigid_body, only: rb_begin, rb_walls, rb_move
   implicit none
   private
 
@@ -57,7 +58,7 @@ contains
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
     integer(ik) :: bad, fail
-    real(wp) :: cs, flw
+    real(wp) :: cs, flw, ke, mom(2), wg, vb
     character(len=300) :: buf
 
     call shape_compute(s%g, s%p, s%sh, bad, fail, st)
@@ -75,6 +76,7 @@ contains
       return
     end if
     call solid_p2g(s, dt)
+    call rb_begin(s%inc%rb, s%p, s%opt%gravity, dt)   ! free rigid bodies: state and gravity (cpdi_rigid_body)
     s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
     ! the water's PIC share is per step of its own length: a coupled step is the solid's acoustic
     ! one, up to ~100 times shorter, and (1 - flip) per step is a numerical viscosity
@@ -89,6 +91,15 @@ contains
     ! on the solids is that momentum change over dt (solid_g2p)
     call solid_g2p(s, dt, st)
     if (.not. st%ok()) return
+    if (s%inc%rb%n > 0) then   ! the walls hold the bodies, which then move rigidly
+      call rb_walls(s%inc%rb, s%g, s%p, dt)
+      call rb_move(s%inc%rb, s%p, s%opt%gravity, dt, ke, mom, wg, vb)
+      s%inc%fsolid = s%inc%fsolid + sum(s%inc%rb%force(1:2, :), dim=2)
+      s%diag(4) = s%diag(4) + ke
+      s%diag(6:7) = s%diag(6:7) + mom
+      s%diag(8) = s%diag(8) + wg
+      s%smax = max(s%smax, sqrt(2.0_wp)*vb + sqrt(norm2(s%opt%gravity)*s%g%h))
+    end if
     s%dt_last = dt
     call solid_stress(s, cs, st)
     if (.not. st%ok()) return
@@ -117,7 +128,7 @@ contains
         g%pry = 0.0_wp
       end if
       do ip = 1, p%n
-        if (s%fluid(p%mat(ip))) cycle
+        if (s%fluid(p%mat(ip)) .or. s%inc%free(p%mat(ip))) cycle
         mp = p%m(ip)
         vol = p%vol(ip)
         sig = p%sig(:, ip)
@@ -191,7 +202,7 @@ contains
     fs = 0.0_wp
     associate (g => s%g, p => s%p)
       do ip = 1, p%n
-        if (s%fluid(p%mat(ip))) cycle
+        if (s%fluid(p%mat(ip)) .or. s%inc%free(p%mat(ip))) cycle
         xo = p%x(:, ip)
         if (s%rigid(p%mat(ip))) then
           p%v(:, ip) = s%mats(p%mat(ip))%vel
@@ -273,7 +284,7 @@ contains
     se = 0.0_wp
     associate (p => s%p)
       do ip = 1, p%n
-        if (s%fluid(p%mat(ip)) .or. s%rigid(p%mat(ip))) cycle
+        if (s%fluid(p%mat(ip)) .or. s%rigid(p%mat(ip)) .or. s%inc%free(p%mat(ip))) cycle
         call material_stresses(s%mats, s%opt%kinematics, ip, ip, p%mat, p%F, p%L, p%jbar, p%sig, p%psi)
         p%psi(ip) = p%psi(ip)*p%vol0(ip)
         se = se + p%psi(ip)

@@ -25,7 +25,8 @@ module cpdi_incompressible
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: NCHUNK, chunk_range
-  use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID
+  use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
+  use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
                            mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
   use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse
@@ -56,6 +57,8 @@ module cpdi_incompressible
     logical :: coupled = .false.       !! solid particles take part (cpdi_fsi drives the step)
     logical, allocatable :: solid(:)   !! per material: a deformable solid (its mass joins the faces)
     logical, allocatable :: rigid(:)   !! per material: a rigid body (its cells bound the water)
+    logical, allocatable :: free(:)    !! per material: a free rigid body (cpdi_rigid_body)
+    type(rbody_t) :: rb                !! the free rigid bodies
     real(wp), allocatable :: rvel(:, :) !! per material: a rigid body's prescribed velocity
     real(wp), allocatable :: usm(:), vsm(:)   !! solid face masses
     real(wp), allocatable :: uvw(:), vvw(:)   !! water face volumes
@@ -80,9 +83,10 @@ module cpdi_incompressible
 
 contains
 
-  subroutine incomp_prepare(ic, g, p, mats, shape_kind, damping, st)
+  subroutine incomp_prepare(ic, g, p, mats, shape_kind, damping, st, body)
     !! Check that the run is one the projection handles (water only, one density, no
-    !! damping), size the work storage and put the water at F = I, V = V0.
+    !! damping), size the work storage and put the water at F = I, V = V0. body: per particle,
+    !! its body index (free rigid bodies are numbered by it; without it, by material).
     type(incomp_t), intent(inout) :: ic
     type(grid_t), intent(in) :: g
     type(particles_t), intent(inout) :: p
@@ -90,6 +94,7 @@ contains
     integer(ik), intent(in) :: shape_kind
     real(wp), intent(in) :: damping
     type(status_t), intent(inout) :: st
+    integer(ik), intent(in), optional :: body(:)
     integer(ik) :: m, first, lo(2), hi(2)
     character(len=300) :: buf
     logical :: used(size(mats)), realloc
@@ -97,14 +102,25 @@ contains
     used = .false.
     used(p%mat) = .true.
     first = 0
-    if (allocated(ic%solid)) deallocate (ic%solid, ic%rigid, ic%rvel)
-    allocate (ic%solid(size(mats)), ic%rigid(size(mats)), ic%rvel(2, size(mats)))
+    if (allocated(ic%solid)) deallocate (ic%solid, ic%rigid, ic%rvel, ic%free)
+    allocate (ic%solid(size(mats)), ic%rigid(size(mats)), ic%rvel(2, size(mats)), ic%free(size(mats)))
     ic%rigid = mats%model == MAT_RIGID
-    ic%solid = mats%model /= MAT_FLUID .and. .not. ic%rigid
+    ic%free = mats%model == MAT_RIGID_BODY
+    ic%solid = mats%model /= MAT_FLUID .and. .not. ic%rigid .and. .not. ic%free
     do m = 1, size(mats)
       ic%rvel(:, m) = mats(m)%vel
     end do
-    ic%coupled = any((ic%solid .or. ic%rigid) .and. used)
+    ic%coupled = any((ic%solid .or. ic%rigid .or. ic%free) .and. used)
+    if (any(ic%free .and. used)) then
+      ! free rigid bodies couple through the boundary-flux operator (cpdi_rigid_body); a deformable
+      ! solid beside them would need its own share of every face's solid fraction
+      if (any(ic%solid .and. used)) then
+        call st%set(CPDI_ERR_INPUT, 'a rigid_body material cannot yet share a run with a deformable solid '// &
+                    '(hencky, neo_hookean); make the solids rigid_body, or run them in separate cases')
+        return
+      end if
+      ic%coupling = COUPLING_BATTY
+    end if
     do m = 1, size(mats)
       if (.not. used(m)) cycle
       if (mats(m)%model /= MAT_FLUID) cycle
@@ -172,8 +188,10 @@ contains
         ic%fillw = 0.0_wp; ic%wu = 0.0_wp; ic%wv = 0.0_wp; ic%phi = 0.0_wp; ic%iu = 0.0_wp; ic%iv = 0.0_wp
         ic%sfill = 0.0_wp; ic%svol = 0.0_wp
       end if
+      call prepare_bodies()
+      if (.not. st%ok()) return
       do m = 1, p%n   ! the water only: the solids keep their deformation
-        if (ic%solid(p%mat(m)) .or. ic%rigid(p%mat(m))) cycle
+        if (ic%solid(p%mat(m)) .or. ic%rigid(p%mat(m)) .or. ic%free(p%mat(m))) cycle
         p%F(:, m) = [1.0_wp, 0.0_wp, 0.0_wp, 1.0_wp]
         p%vol(m) = p%vol0(m)
         p%jbar(m) = 1.0_wp
@@ -190,6 +208,23 @@ contains
     p%jbar = 1.0_wp
     p%r = p%r0
     p%psi = 0.0_wp
+  contains
+    subroutine prepare_bodies()
+      !! The free rigid bodies and the pressure system's low-rank storage for them.
+      integer(ik) :: ierr
+      if (present(body)) then
+        call rb_prepare(ic%rb, ic%free, body, p, mats%friction, g%nnodes, st)
+      else
+        call rb_prepare(ic%rb, ic%free, p%mat, p, mats%friction, g%nnodes, st)
+      end if
+      if (.not. st%ok()) return
+      ic%mc%nlr = 0
+      if (allocated(ic%mc%lrc)) deallocate (ic%mc%lrc, ic%mc%lrb, ic%mc%lrj, ic%mc%lrd)
+      allocate (ic%mc%lrc(g%nnodes*ic%rb%n), ic%mc%lrb(g%nnodes*ic%rb%n), ic%mc%lrj(3, g%nnodes*ic%rb%n), &
+                ic%mc%lrd(3, ic%rb%n), stat=ierr)
+      if (ierr /= 0) call st%set(CPDI_ERR_ALLOC, 'could not allocate the rigid bodies'' pressure rows; '// &
+                                 'use a larger cell size')
+    end subroutine prepare_bodies
   end subroutine incomp_prepare
 
   pure function lattice(g, shift) result(gs)
@@ -263,9 +298,14 @@ contains
         solid = .false.
         if (ic%coupled) then
           if (ic%rigid(p%mat(ip))) cycle   ! marked below, after the water
-          solid = ic%solid(p%mat(ip))
+          solid = ic%solid(p%mat(ip)) .or. ic%free(p%mat(ip))
           vp = p%vol(ip)
-          if (solid) then
+          if (ic%free(p%mat(ip))) then   ! volume only: the body's mass is its own (cpdi_rigid_body)
+            call scatter_v(ic%shu, ic%uvs)
+            call scatter_v(ic%shv, ic%vvs)
+            call scatter_v(ic%shu, ic%rb%uvb(:, ic%rb%slot(ip)))
+            call scatter_v(ic%shv, ic%rb%vvb(:, ic%rb%slot(ip)))
+          else if (solid) then
             call scatter_mv(ic%shu, ic%usm, ic%uvs)
             call scatter_mv(ic%shv, ic%vsm, ic%vvs)
           else
@@ -332,6 +372,10 @@ contains
       ic%mc%ua = 1.0_wp
       ic%mc%va = 1.0_wp
       ic%fillw = 0.0_wp
+      if (ic%rb%n > 0) then
+        ic%rb%uvb = 0.0_wp
+        ic%rb%vvb = 0.0_wp
+      end if
     end subroutine clear_coupled
 
     subroutine mark_rigid()
@@ -483,15 +527,21 @@ contains
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     if (batty) then
       call batty_faces(ic, nm, nvx, nvy, mtol)
+      if (ic%rb%n > 0) then
+        call water_faces_without_water(ic%mc, ic%mc%um, ic%wu, 1_ik, ic%mc%u, ic%mc%uo, mtol, dt*gravity(1))
+        call water_faces_without_water(ic%mc, ic%mc%vm, ic%wv, ic%mc%nn(1), ic%mc%v, ic%mc%vo, mtol, dt*gravity(2))
+      end if
     else if (ic%coupled) then
       call solid_to_faces(ic, nm, nvx, nvy, mtol)
     end if
     diag(15) = 0.0_wp
+    ic%mc%nlr = 0   ! the correction's solve holds the bodies still
     call volume_correction(ic, dt, mtol, diag, converged, timers, t0)
     if (converged) then
       call mac_walls(ic%mc)
       if (batty) then
         call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
+        call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
       end if
@@ -511,6 +561,7 @@ contains
     end if
     call mac_project(ic%mc, dt, ic%rho)
     if (batty) then
+      call rb_impulse(ic%rb, ic%mc, dt)
       call batty_to_solid(ic, g, nm, dt, mtol, dvx, dvy)
     else if (ic%coupled) then
       call faces_to_solid(ic, nm, mtol, dvx, dvy)
@@ -579,6 +630,47 @@ contains
       end do
     end associate
   end subroutine solid_to_faces
+
+  subroutine water_faces_without_water(mc, fm, w, normal, f, fo, mtol, gdt)
+    !! A face of a water cell whose water share 1 - w is open but that no water particle reaches
+    !! (beside a solid that covers most of it) carries the mean velocity of its lattice neighbours
+    !! that water reaches (f after forces, fo before), or gravity's impulse gdt alone: not 0, which
+    !! the constraint would read as water held still there (a body at rest in resting water off the
+    !! cell lines then felt 0.4 % less than its buoyancy). normal: the lattice stride across the face.
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(in) :: fm(:), w(:), mtol, gdt
+    integer(ik), intent(in) :: normal
+    real(wp), intent(inout) :: f(:), fo(:)
+    integer(ik) :: i, j, k, n1, a, cnt, nb(4)
+    real(wp) :: sf, so
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2) + 1
+      do i = mc%lo(1), mc%hi(1) + 1
+        k = i + (j - 1)*n1
+        if (fm(k) > mtol .or. .not. (w(k) < 1.0_wp)) cycle
+        if (mc%cell(k) /= CELL_FLUID .and. mc%cell(k - normal) /= CELL_FLUID) cycle
+        if (mc%cell(k) == CELL_SOLID .or. mc%cell(k - normal) == CELL_SOLID) cycle
+        nb = [k - 1, k + 1, k - n1, k + n1]
+        cnt = 0
+        sf = 0.0_wp
+        so = 0.0_wp
+        do a = 1, 4
+          if (fm(nb(a)) > mtol) then
+            cnt = cnt + 1
+            sf = sf + f(nb(a))
+            so = so + fo(nb(a))
+          end if
+        end do
+        if (cnt > 0) then
+          f(k) = sf/real(cnt, wp)
+          fo(k) = so/real(cnt, wp)
+        else
+          f(k) = gdt
+          fo(k) = 0.0_wp
+        end if
+      end do
+    end do
+  end subroutine water_faces_without_water
 
   subroutine batty_faces(ic, nm, nvx, nvy, mtol)
     !! Coupling batty (cpdi_coupling): the solid's face velocities (us, vs: the nodal velocity
@@ -819,8 +911,8 @@ contains
         wc = 0.0_wp
         nclamp = 0
         do ip = lo, hi
-          if (ic%coupled) then   ! the solids move with their nodes (cpdi_fsi)
-            if (ic%solid(p%mat(ip)) .or. ic%rigid(p%mat(ip))) cycle
+          if (ic%coupled) then   ! the solids move with their nodes (cpdi_fsi) or as one body
+            if (ic%solid(p%mat(ip)) .or. ic%rigid(p%mat(ip)) .or. ic%free(p%mat(ip))) cycle
           end if
           mp = p%m(ip)
           xo = p%x(:, ip)

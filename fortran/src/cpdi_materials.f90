@@ -15,11 +15,13 @@ module cpdi_materials
   integer(ik), parameter, public :: MAT_FLUID = 2        !! p = -K ln J, plus 2 visc dev(D)
   integer(ik), parameter, public :: MAT_RIGID = 3        !! prescribed velocity, no stress
   integer(ik), parameter, public :: MAT_NEOHOOKEAN = 4   !! sigma = lam ln J / J I + mu/J (b - I)
+  integer(ik), parameter, public :: MAT_RIGID_BODY = 5   !! a free rigid body (cpdi_rigid_body), no stress
 
   integer(ik), parameter, public :: KIN_LOG = 0          !! finite strain: Hencky log strain
   integer(ik), parameter, public :: KIN_SMALL = 1        !! small strain: eps = sym(F) - I
 
   integer, parameter, public :: NMATPROP = 8  !! props: density, E, nu, K, viscosity, vx, vy, project
+  !! (rigid_body: props(2) is its Coulomb friction coefficient against the walls)
 
   type, public :: material_t
     integer(ik) :: model = MAT_HENCKY
@@ -29,6 +31,7 @@ module cpdi_materials
     real(wp) :: K = 0.0_wp        !! bulk modulus [Pa]
     real(wp) :: visc = 0.0_wp     !! dynamic viscosity [Pa s] (fluid)
     real(wp) :: vel(2) = 0.0_wp   !! prescribed velocity [m/s] (rigid)
+    real(wp) :: friction = 0.0_wp !! Coulomb coefficient against the walls (rigid_body)
     real(wp) :: pmod = 0.0_wp     !! P-wave modulus K + 4G/3 [Pa], for the signal speed
     logical :: project = .false.  !! takes part in the volumetric projection
   end type material_t
@@ -54,7 +57,7 @@ contains
     end if
     mat%model = model
     mat%rho0 = props(1)
-    mat%project = props(8) /= 0.0_wp .and. model /= MAT_RIGID
+    mat%project = props(8) /= 0.0_wp .and. model /= MAT_RIGID .and. model /= MAT_RIGID_BODY
     if (.not. (props(1) > 0.0_wp)) then
       write (buf, '(a,i0,a,es11.3,a)') 'material ', imat, ' density is ', props(1), &
         '; density must be positive (kg/m^3)'
@@ -98,9 +101,18 @@ contains
     case (MAT_RIGID)
       mat%vel = props(6:7)
       mat%pmod = 0.0_wp
+    case (MAT_RIGID_BODY)
+      mat%friction = props(2)
+      mat%pmod = 0.0_wp
+      if (.not. (mat%friction >= 0.0_wp)) then
+        write (buf, '(a,i0,a,es11.3,a)') 'material ', imat, ' friction is ', mat%friction, &
+          '; the Coulomb coefficient must be zero or positive'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+        return
+      end if
     case default
       write (buf, '(a,i0,a,i0,a)') 'material ', imat, ' has model id ', model, &
-        '; use 1 hencky, 2 newtonian_fluid, 3 rigid or 4 neo_hookean'
+        '; use 1 hencky, 2 newtonian_fluid, 3 rigid, 4 neo_hookean or 5 rigid_body'
       call st%set(CPDI_ERR_INPUT, trim(buf))
     end select
   end subroutine material_init

@@ -53,6 +53,13 @@ module cpdi_pressure
     real(wp), allocatable :: ua(:), va(:)    !! face coefficients rho_w / rho_face (1 on water faces)
     real(wp), allocatable :: rvx(:), rvy(:)  !! velocity of a CELL_SOLID cell (0: wall; a rigid body's)
     integer(ik) :: nfluid = 0                !! water cells
+    ! A low-rank term of the matrix (free rigid bodies, cpdi_rigid_body): A += sum_b J_b D_b J_b^T,
+    ! J_b the body's 3 columns (x, y velocity, rotation) over the cells it bounds, D_b = rho M_b^-1.
+    integer(ik) :: nlr = 0                   !! entries of the term (0: none)
+    integer(ik), allocatable :: lrc(:)       !! entry e: its cell
+    integer(ik), allocatable :: lrb(:)       !! entry e: its body
+    real(wp), allocatable :: lrj(:, :)       !! entry e: J of its cell (3)
+    real(wp), allocatable :: lrd(:, :)       !! per body: D's diagonal (3)
     integer(ik) :: iters = 0                 !! CG iterations of the last solve
     real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
   end type mac_t
@@ -252,7 +259,26 @@ contains
                + mc%aj(c - n1)*x(c - n1)
       end do
     end do
+    if (mc%nlr > 0) call lowrank_apply(mc, x, y)
   end subroutine mac_apply
+
+  subroutine lowrank_apply(mc, x, y)
+    !! y <- y + sum_b J_b D_b J_b^T x (the free rigid bodies' rows; cells in a fixed order, so the
+    !! sums do not depend on the thread count).
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(in) :: x(:)
+    real(wp), intent(inout) :: y(:)
+    real(wp) :: t(3, size(mc%lrd, 2))
+    integer(ik) :: e
+    t = 0.0_wp
+    do e = 1, mc%nlr
+      t(:, mc%lrb(e)) = t(:, mc%lrb(e)) + mc%lrj(:, e)*x(mc%lrc(e))
+    end do
+    t = t*mc%lrd
+    do e = 1, mc%nlr
+      y(mc%lrc(e)) = y(mc%lrc(e)) + dot_product(mc%lrj(:, e), t(:, mc%lrb(e)))
+    end do
+  end subroutine lowrank_apply
 
   subroutine mic0(mc)
     !! MIC(0) factor: pre = 1 / sqrt(e) of every water cell.

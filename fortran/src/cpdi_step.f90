@@ -28,6 +28,7 @@ module cpdi_step
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, &
                          CPDI_ERR_CFL
   use cpdi_grid, only: grid_fields
+  use cpdi_materials, only: MAT_RIGID_BODY
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
@@ -79,6 +80,11 @@ contains
     end if
     call prepare_fields(s, st)
     if (.not. st%ok()) return
+    if (s%opt%fluid /= FLUID_INCOMPRESSIBLE .and. any(s%mats(s%p%mat)%model == MAT_RIGID_BODY)) then
+      call st%set(CPDI_ERR_INPUT, 'a rigid_body material (a free rigid body) moves with the incompressible water '// &
+                  'only; set [solver] fluid = "incompressible", or use model = "rigid" with a prescribed velocity')
+      return
+    end if
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
       call prepare_incompressible(s, st)
       return
@@ -178,7 +184,11 @@ contains
                   'incompressible water needs none; set [solver] projection = "none"')
       return
     end if
-    call incomp_prepare(s%inc, s%g, s%p, s%mats, s%opt%shape, s%opt%damping, st)
+    if (allocated(s%body)) then
+      call incomp_prepare(s%inc, s%g, s%p, s%mats, s%opt%shape, s%opt%damping, st, s%body)
+    else
+      call incomp_prepare(s%inc, s%g, s%p, s%mats, s%opt%shape, s%opt%damping, st)
+    end if
     if (.not. st%ok()) return
     s%diag(10) = sum(s%p%m)
     if (s%smax < 0.0_wp) s%smax = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
