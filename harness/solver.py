@@ -336,7 +336,8 @@ class Simulation:
         [1/s], and the water's force fx, fy [N/m] and torque [N m/m] during the step (the state at
         the step's start for mass, inertia and centre)."""
         nb, state = _call("cpdi_rigid_bodies", self._handle, 64)
-        return [dict(zip(self.RIGID_BODY_COLUMNS, map(float, state[:, b]), strict=True)) for b in range(min(int(nb), 64))]
+        cols = self.RIGID_BODY_COLUMNS
+        return [dict(zip(cols, map(float, state[:, b]), strict=True)) for b in range(min(int(nb), 64))]
 
     def face_velocity(self) -> tuple[np.ndarray, np.ndarray]:
         """Face velocities of an incompressible run after its last step: u (nx + 1, ny) on the
