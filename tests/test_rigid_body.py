@@ -47,12 +47,16 @@ def tank(water, block, rho_s, *, U=(0.0, 0.0), omega=0.0, size=(1.0, 1.0), frict
 def test_free_body_in_air_falls_at_g_and_keeps_its_spin():
     # thrown sideways with a spin above a pool: until it nears the water its centre falls at g
     # exactly, its horizontal velocity and angular velocity stay, and its particles stay rigid
+    # (its centre exactly on the parabola: a body in free flight moves with the step's mean velocity)
     sim, nw = tank(((0.0, 0.0), (1.0, 0.2)), ((0.3, 0.6), (0.6, 0.75)), 500.0, U=(0.3, 0.5), omega=2.0)
     x0 = sim.state()["x"][nw:].copy()
     steps, t = sim.advance(0.15)
     body, st = sim.rigid_bodies()[0], sim.state()
     sim.close()
     assert steps >= 4
+    centre = st["x"][nw:].mean(axis=0)
+    assert centre[0] == pytest.approx(0.45 + 0.3 * t, abs=1e-12)
+    assert centre[1] == pytest.approx(0.675 + 0.5 * t - 0.5 * G * t * t, abs=1e-12)
     assert body["vx"] == pytest.approx(0.3, abs=1e-12)
     assert body["vy"] == pytest.approx(0.5 - G * t, abs=1e-12)
     assert body["omega"] == pytest.approx(2.0, abs=1e-12)

@@ -43,6 +43,8 @@ module cpdi_rigid_body
     real(wp), allocatable :: m(:), inertia(:)    !! mass [kg/m], moment of inertia about xc [kg m^2/m]
     real(wp), allocatable :: xc(:, :)            !! centre of mass [m]
     real(wp), allocatable :: v(:, :), w(:)       !! velocity [m/s], angular velocity [1/s]
+    real(wp), allocatable :: v0(:, :)            !! velocity at the step's start [m/s]
+    logical, allocatable :: flight(:)            !! no water and no wall acted on the body this step
     real(wp), allocatable :: friction(:)         !! Coulomb coefficient against the walls
     real(wp), allocatable :: vol(:)              !! volume [m^2/m]
     real(wp), allocatable :: force(:, :)         !! (3, n): the water's force and torque of the last step
@@ -67,8 +69,8 @@ contains
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, nmax, ierr, npart
     integer(ik), allocatable :: map(:)
-    if (allocated(rb%slot)) deallocate (rb%slot, rb%m, rb%inertia, rb%xc, rb%v, rb%w, rb%friction, rb%vol, rb%force, &
-                                         rb%uvb, rb%vvb, rb%cp, rb%cn, rb%cl, rb%ct, rb%cmin)
+    if (allocated(rb%slot)) deallocate (rb%slot, rb%m, rb%inertia, rb%xc, rb%v, rb%w, rb%friction, rb%vol, &
+                                         rb%force, rb%v0, rb%flight, rb%uvb, rb%vvb, rb%cp, rb%cn, rb%cl, rb%ct, rb%cmin)
     rb%n = 0
     nmax = 0
     if (p%n > 0) nmax = maxval(body)
@@ -90,6 +92,7 @@ contains
       npart = npart + 1
     end do
     allocate (rb%m(rb%n), rb%inertia(rb%n), rb%xc(2, rb%n), rb%v(2, rb%n), rb%w(rb%n), rb%friction(rb%n), rb%vol(rb%n), &
+              rb%v0(2, rb%n), rb%flight(rb%n), &
               rb%force(3, rb%n), rb%uvb(nnodes, rb%n), rb%vvb(nnodes, rb%n), rb%cp(npart), rb%cn(2, npart), &
               rb%cl(npart), rb%ct(npart), rb%cmin(npart), stat=ierr)
     if (ierr /= 0) then
@@ -156,11 +159,14 @@ contains
       ! masses' inertia (the domains' own spin is no part of their velocities)
       rb%w(b) = 0.0_wp
       if (jp(b) > 0.0_wp) rb%w(b) = ang(b)/jp(b)
+      rb%v0(:, b) = rb%v(:, b)
       rb%v(:, b) = rb%v(:, b) + dt*(gravity + fb(:, b)/rb%m(b))
+      rb%flight(b) = .true.
     end do
   end subroutine rb_begin
 
   subroutine rb_assemble(rb, mc, g, wu, wv, uvs, vvs, rho, dt)
+    !! (rb%flight: cleared for the bodies that bound a water cell.)
     !! The bodies' rows of the pressure equation: the low-rank term rho J M^-1 J^T in mc (lrc, lrb,
     !! lrj, lrd, nlr) and -(rho / dt) J . U* added to the right-hand side of every water cell they
     !! bound. wu, wv: the solid fractions of the faces (all solids, as cpdi_coupling left them: a face
@@ -171,7 +177,7 @@ contains
     !! (xv on the v lattice, yu on the u lattice): a hydrostatic pressure then gives rho g V and
     !! no torque wherever the body lies on the grid (the full faces would otherwise count the
     !! volume of the cells they close: 0.3-0.4 % too much buoyancy, and a torque, off the cell lines).
-    type(rbody_t), intent(in) :: rb
+    type(rbody_t), intent(inout) :: rb
     type(mac_t), intent(inout) :: mc
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: wu(:), wv(:), uvs(:), vvs(:), rho, dt
@@ -227,6 +233,7 @@ contains
           mc%lrc(mc%nlr) = c
           mc%lrb(mc%nlr) = b
           mc%lrj(:, mc%nlr) = jc
+          rb%flight(b) = .false.
           mc%b(c) = mc%b(c) - (rho/dt)*(jc(1)*rb%v(1, b) + jc(2)*rb%v(2, b) + jc(3)*rb%w(b))
         end do
       end do
@@ -314,6 +321,7 @@ contains
         end do
       end do
       if (nc == 0) cycle
+      rb%flight(b) = .false.
       do sweep = 1, CONTACT_SWEEPS
         do e = 1, nc
           n = rb%cn(:, e)
@@ -347,6 +355,10 @@ contains
   subroutine rb_move(rb, p, gravity, dt, ke, mom, wg, vmax)
     !! Every body's particles move rigidly over dt with the body's velocity: x = X + dt V + R d,
     !! R the rotation by omega dt, d = x - X; their domains and F turn with R; v = V + omega x (R d).
+    !! V is the velocity after the step (symplectic Euler, as the water's particles move), or, for
+    !! a body in free flight (no water cell and no wall touched it), the step's mean velocity
+    !! (V0 + V) / 2: free fall is then exact, where the velocity after the step put a body 0.6 cm
+    !! low after 0.1 s at dt = 0.01 s, and it met the water up to 5 % slower than sqrt(2 g z).
     !! ke, mom, wg: the bodies' kinetic energy, momentum and work of gravity; vmax: the fastest
     !! particle's speed.
     type(rbody_t), intent(in) :: rb
@@ -354,7 +366,7 @@ contains
     real(wp), intent(in) :: gravity(2), dt
     real(wp), intent(out) :: ke, mom(2), wg, vmax
     integer(ik) :: ip, b
-    real(wp) :: c, s, d(2), xo(2), f(4), rr(4)
+    real(wp) :: c, s, d(2), xo(2), f(4), rr(4), vt(2)
     ke = 0.0_wp
     mom = 0.0_wp
     wg = 0.0_wp
@@ -368,7 +380,9 @@ contains
       xo = p%x(:, ip)
       d = xo - rb%xc(:, b)
       d = [c*d(1) - s*d(2), s*d(1) + c*d(2)]
-      p%x(:, ip) = rb%xc(:, b) + dt*rb%v(:, b) + d
+      vt = rb%v(:, b)
+      if (rb%flight(b)) vt = 0.5_wp*(rb%v0(:, b) + rb%v(:, b))
+      p%x(:, ip) = rb%xc(:, b) + dt*vt + d
       p%v(:, ip) = rb%v(:, b) + rb%w(b)*[-d(2), d(1)]
       rr = p%r(:, ip)
       p%r(:, ip) = [c*rr(1) - s*rr(2), s*rr(1) + c*rr(2), c*rr(3) - s*rr(4), s*rr(3) + c*rr(4)]
