@@ -412,6 +412,6 @@ def pressure(sigma: np.ndarray) -> np.ndarray:
 
 # Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
 FULL_STATE_ROWS = (("x", 2), ("v", 2), ("F", 4), ("L", 4), ("sigma", 4), ("r", 4), ("body_force", 2), ("vol", 1),
-                   ("psi", 1), ("jbar", 1))
+                   ("psi", 1), ("jbar", 1), ("water_accel", 2))
 FULL_STATE_SCALARS = ("t", "steps", "smax", "visc_dt", "dt_last", *(f"diag.{d}" for d in DIAG_NAMES),
                       *(f"timer.{t}" for t in TIMER_NAMES))

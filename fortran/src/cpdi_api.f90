@@ -41,7 +41,7 @@ module cpdi_api
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
-  integer, parameter :: NPSTATE = 25                !! rows per particle of the full state
+  integer, parameter :: NPSTATE = 27                !! rows per particle of the full state
   integer, parameter :: NSSTATE = 5 + NDIAG + NTIMER !! scalars of the full state
   public :: cpdi_full_state_size, cpdi_get_full_state, cpdi_set_full_state
 
@@ -981,7 +981,7 @@ contains
   subroutine cpdi_get_full_state(handle, nprow, n, nscal, pstate, sstate, ierr, msg)
     !! Copy out everything stepping depends on, so that a simulation rebuilt from the same
     !! case and given this state by cpdi_set_full_state continues bit for bit.
-    !! pstate(:, ip) = [x(2), v(2), F(4), L(4), sig(4), r(4), bf(2), vol, psi, jbar];
+    !! pstate(:, ip) = [x(2), v(2), F(4), L(4), sig(4), r(4), bf(2), vol, psi, jbar, aw(2)];
     !! sstate = [t, steps, smax, visc_dt, dt_last, diag(NDIAG), timers(NTIMER)].
     !! Mass, vol0, r0, material and body come from the case and are not included; grid,
     !! shape and projection arrays are rebuilt at every step and carry no state.
@@ -1008,6 +1008,7 @@ contains
       pstate(23, :) = s%p%vol
       pstate(24, :) = s%p%psi
       pstate(25, :) = s%p%jbar
+      pstate(26:27, :) = s%p%aw
       sstate(1) = s%t
       sstate(2) = real(s%steps, wp)
       sstate(3) = s%smax
@@ -1068,6 +1069,7 @@ contains
       s%p%vol = pstate(23, :)
       s%p%psi = pstate(24, :)
       s%p%jbar = pstate(25, :)
+      s%p%aw = pstate(26:27, :)
       s%t = sstate(1)
       s%steps = int(sstate(2), kind(s%steps))
       s%smax = sstate(3)

@@ -77,6 +77,7 @@ contains
     end if
     call solid_p2g(s, dt)
     call rb_begin(s%inc%rb, s%p, s%opt%gravity, dt)   ! free rigid bodies: state and gravity (cpdi_rigid_body)
+    call rb_walls(s%inc%rb, s%g, s%p, dt, .true.)     ! ... and what the walls hold in the pressure solve
     s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
     ! the water's PIC share is per step of its own length: a coupled step is the solid's acoustic
     ! one, up to ~100 times shorter, and (1 - flip) per step is a numerical viscosity
@@ -92,7 +93,7 @@ contains
     call solid_g2p(s, dt, st)
     if (.not. st%ok()) return
     if (s%inc%rb%n > 0) then   ! the walls hold the bodies, which then move rigidly
-      call rb_walls(s%inc%rb, s%g, s%p, dt)
+      call rb_walls(s%inc%rb, s%g, s%p, dt, .false.)
       call rb_move(s%inc%rb, s%p, s%opt%gravity, dt, ke, mom, wg, vb)
       s%inc%fsolid = s%inc%fsolid + sum(s%inc%rb%force(1:2, :), dim=2)
       s%diag(4) = s%diag(4) + ke

@@ -218,6 +218,18 @@ contains
         call rb_prepare(ic%rb, ic%free, p%mat, p, mats%friction, g%nnodes, st)
       end if
       if (.not. st%ok()) return
+      ! the walls are the only contact a free body has: two bodies, or a body and a prescribed one,
+      ! would pass through each other
+      if (ic%rb%n > 1) then
+        call st%set(CPDI_ERR_INPUT, 'more than one free rigid body (rigid_body): bodies do not yet touch '// &
+                    'each other and would pass through one another; use one rigid_body body per run')
+        return
+      end if
+      if (ic%rb%n > 0 .and. any(ic%rigid .and. used)) then
+        call st%set(CPDI_ERR_INPUT, 'a free rigid body (rigid_body) with a prescribed one (rigid): they do not '// &
+                    'yet touch each other and would pass through one another; use one of the two per run')
+        return
+      end if
       ic%mc%nlr = 0
       if (allocated(ic%mc%lrc)) deallocate (ic%mc%lrc, ic%mc%lrb, ic%mc%lrj, ic%mc%lrd)
       allocate (ic%mc%lrc(g%nnodes*ic%rb%n), ic%mc%lrb(g%nnodes*ic%rb%n), ic%mc%lrj(3, g%nnodes*ic%rb%n), &

@@ -24,6 +24,8 @@ module cpdi_particles
     real(wp), allocatable :: r0(:, :)       !! initial CPDI domain vectors (4, n)
     real(wp), allocatable :: r(:, :)        !! current CPDI interpolation domain vectors (4, n)
     real(wp), allocatable :: bf(:, :)       !! external body force per unit mass [m/s^2] (2, n)
+    real(wp), allocatable :: aw(:, :)       !! the water's force per unit mass on a free rigid body in its
+                                            !! last step [m/s^2] (2, n): what the walls hold (cpdi_rigid_body)
     real(wp), allocatable :: psi(:)         !! stored strain energy [J per m thickness]
     real(wp), allocatable :: jbar(:)        !! projected Jacobian (equals det F without projection)
     real(wp), allocatable :: work(:, :)     !! per-particle scratch (3, n) for the projection
@@ -41,9 +43,9 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr
     if (allocated(p%x)) deallocate (p%x, p%v, p%m, p%vol0, p%vol, p%F, p%L, p%sig, p%r0, p%r, &
-                                    p%bf, p%psi, p%jbar, p%work, p%mat)
+                                    p%bf, p%aw, p%psi, p%jbar, p%work, p%mat)
     allocate (p%x(2, n), p%v(2, n), p%m(n), p%vol0(n), p%vol(n), p%F(4, n), p%L(4, n), p%sig(4, n), &
-              p%r0(4, n), p%r(4, n), p%bf(2, n), p%psi(n), p%jbar(n), p%work(3, n), p%mat(n), stat=ierr)
+              p%r0(4, n), p%r(4, n), p%bf(2, n), p%aw(2, n), p%psi(n), p%jbar(n), p%work(3, n), p%mat(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate particle storage; use fewer particles')
       p%n = 0
@@ -66,6 +68,7 @@ contains
     p%L = 0.0_wp
     p%sig = 0.0_wp
     p%bf = 0.0_wp
+    p%aw = 0.0_wp
     p%psi = 0.0_wp
     p%jbar = 1.0_wp
   end subroutine particles_alloc

@@ -47,10 +47,13 @@ module cpdi_rigid_body
     logical, allocatable :: flight(:)            !! no water and no wall acted on the body this step
     real(wp), allocatable :: friction(:)         !! Coulomb coefficient against the walls
     real(wp), allocatable :: vol(:)              !! volume [m^2/m]
+    real(wp), allocatable :: xv(:, :)            !! centroid of the volume [m] (the mass centre's if uniform)
+    logical, allocatable :: lock(:, :)           !! (3, n): a wall holds this degree of freedom in the solve
     real(wp), allocatable :: force(:, :)         !! (3, n): the water's force and torque of the last step
     real(wp), allocatable :: uvb(:, :), vvb(:, :) !! per body: its volume on the u and v face lattices
-    integer(ik), allocatable :: cp(:)            !! contact candidates (particles)
-    real(wp), allocatable :: cn(:, :), cl(:), ct(:), cmin(:)   !! their normal, impulses, target speed
+    integer(ik), allocatable :: cp(:)            !! contact candidates (particles; up to 4 walls each)
+    real(wp), allocatable :: cn(:, :), cr(:, :)  !! their wall's normal, the touching corner's offset from xc
+    real(wp), allocatable :: cl(:), ct(:), cmin(:)   !! impulses (normal, friction), target normal speed
   end type rbody_t
 
   public :: rb_prepare, rb_begin, rb_assemble, rb_impulse, rb_walls, rb_move
@@ -70,7 +73,8 @@ contains
     integer(ik) :: ip, nmax, ierr, npart
     integer(ik), allocatable :: map(:)
     if (allocated(rb%slot)) deallocate (rb%slot, rb%m, rb%inertia, rb%xc, rb%v, rb%w, rb%friction, rb%vol, &
-                                         rb%force, rb%v0, rb%flight, rb%uvb, rb%vvb, rb%cp, rb%cn, rb%cl, rb%ct, rb%cmin)
+                                         rb%force, rb%v0, rb%flight, rb%uvb, rb%vvb, rb%cp, rb%cn, rb%cl, rb%ct, rb%cmin, &
+                                         rb%cr, rb%xv, rb%lock)
     rb%n = 0
     nmax = 0
     if (p%n > 0) nmax = maxval(body)
@@ -93,13 +97,15 @@ contains
     end do
     allocate (rb%m(rb%n), rb%inertia(rb%n), rb%xc(2, rb%n), rb%v(2, rb%n), rb%w(rb%n), rb%friction(rb%n), rb%vol(rb%n), &
               rb%v0(2, rb%n), rb%flight(rb%n), &
-              rb%force(3, rb%n), rb%uvb(nnodes, rb%n), rb%vvb(nnodes, rb%n), rb%cp(npart), rb%cn(2, npart), &
-              rb%cl(npart), rb%ct(npart), rb%cmin(npart), stat=ierr)
+              rb%force(3, rb%n), rb%uvb(nnodes, rb%n), rb%vvb(nnodes, rb%n), rb%cp(4*npart), rb%cn(2, 4*npart), &
+              rb%cl(4*npart), rb%ct(4*npart), rb%cmin(4*npart), rb%cr(2, 4*npart), rb%xv(2, rb%n), rb%lock(3, rb%n), &
+              stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the rigid bodies; use a larger cell size')
       return
     end if
     rb%m = 0.0_wp; rb%inertia = 0.0_wp; rb%xc = 0.0_wp; rb%v = 0.0_wp; rb%w = 0.0_wp; rb%force = 0.0_wp
+    rb%xv = 0.0_wp; rb%lock = .false.; rb%flight = .true.; rb%v0 = 0.0_wp; rb%vol = 0.0_wp
     rb%uvb = 0.0_wp; rb%vvb = 0.0_wp
     rb%friction = 0.0_wp
     do ip = 1, p%n
@@ -125,6 +131,8 @@ contains
     rb%m = 0.0_wp
     rb%vol = 0.0_wp
     rb%xc = 0.0_wp
+    rb%xv = 0.0_wp
+    rb%lock = .false.
     mom = 0.0_wp
     fb = 0.0_wp
     do ip = 1, p%n
@@ -133,12 +141,14 @@ contains
       mp = p%m(ip)
       rb%m(b) = rb%m(b) + mp
       rb%vol(b) = rb%vol(b) + p%vol(ip)
+      rb%xv(:, b) = rb%xv(:, b) + p%vol(ip)*p%x(:, ip)
       rb%xc(:, b) = rb%xc(:, b) + mp*p%x(:, ip)
       mom(:, b) = mom(:, b) + mp*p%v(:, ip)
       fb(:, b) = fb(:, b) + mp*p%bf(:, ip)
     end do
     do b = 1, rb%n
       rb%xc(:, b) = rb%xc(:, b)/rb%m(b)
+      rb%xv(:, b) = rb%xv(:, b)/rb%vol(b)
       rb%v(:, b) = mom(:, b)/rb%m(b)
     end do
     rb%inertia = 0.0_wp
@@ -188,28 +198,26 @@ contains
     n1 = mc%nn(1)
     do b = 1, rb%n
       mc%lrd(:, b) = rho*[1.0_wp/rb%m(b), 1.0_wp/rb%m(b), 1.0_wp/rb%inertia(b)]
+      where (rb%lock(:, b)) mc%lrd(:, b) = 0.0_wp   ! held by a wall in this solve: no mobility
     end do
-    ! the body's volume and its centroid on each face lattice (u faces i = lo..hi+1 at cell-centre
-    ! height, v faces j = lo..hi+1 at cell-centre abscissa)
+    ! the body's volume and its centroid on each face lattice (u faces at cell-centre height, v faces
+    ! at cell-centre abscissa), the whole padded lattice: a body partly beyond an open side keeps
+    ! its fractions
     su = 0.0_wp
     sv = 0.0_wp
     yu = 0.0_wp
     xv = 0.0_wp
-    do j = mc%lo(2), mc%hi(2) + 1
-      do i = mc%lo(1), mc%hi(1) + 1
+    do j = 1, mc%nn(2)
+      do i = 1, n1
         c = i + (j - 1)*n1
         xc = g%gorig + ([real(i, wp), real(j, wp)] - 0.5_wp)*g%h
         do b = 1, rb%n
-          if (j <= mc%hi(2)) then
-            a = frac(c, wu, uvs, rb%uvb(:, b))
-            su(b) = su(b) + a
-            yu(b) = yu(b) + a*xc(2)
-          end if
-          if (i <= mc%hi(1)) then
-            a = frac(c, wv, vvs, rb%vvb(:, b))
-            sv(b) = sv(b) + a
-            xv(b) = xv(b) + a*xc(1)
-          end if
+          a = frac(c, wu, uvs, rb%uvb(:, b))
+          su(b) = su(b) + a
+          yu(b) = yu(b) + a*xc(2)
+          a = frac(c, wv, vvs, rb%vvb(:, b))
+          sv(b) = sv(b) + a
+          xv(b) = xv(b) + a*xc(1)
         end do
       end do
     end do
@@ -228,13 +236,20 @@ contains
           gx = su(b)*(share(c + 1, c, c + 1, wu, uvs, rb%uvb(:, b)) - share(c, c - 1, c, wu, uvs, rb%uvb(:, b)))
           gy = sv(b)*(share(c + n1, c, c + n1, wv, vvs, rb%vvb(:, b)) - share(c, c - n1, c, wv, vvs, rb%vvb(:, b)))
           if (gx == 0.0_wp .and. gy == 0.0_wp) cycle
-          jc = mc%h*[gx, gy, gy*(xc(1) - xv(b)) - gx*(xc(2) - yu(b))]
+          ! the rotation's flux about the mass centre X, with the lattice volumes' centroid moved
+          ! onto the particles' volume centroid (the shift that makes a hydrostatic torque vanish
+          ! about the centre of buoyancy of a uniform body, and keeps a ballasted body's couple)
+          jc = mc%h*[gx, gy, gy*(xc(1) - xv(b) + rb%xv(1, b) - rb%xc(1, b)) &
+                     - gx*(xc(2) - yu(b) + rb%xv(2, b) - rb%xc(2, b))]
           mc%nlr = mc%nlr + 1
           mc%lrc(mc%nlr) = c
           mc%lrb(mc%nlr) = b
           mc%lrj(:, mc%nlr) = jc
           rb%flight(b) = .false.
-          mc%b(c) = mc%b(c) - (rho/dt)*(jc(1)*rb%v(1, b) + jc(2)*rb%v(2, b) + jc(3)*rb%w(b))
+          ! (a degree of freedom a wall holds carries no flux in this solve: the wall takes its push)
+          mc%b(c) = mc%b(c) - (rho/dt)*(merge(0.0_wp, jc(1)*rb%v(1, b), rb%lock(1, b)) &
+                                        + merge(0.0_wp, jc(2)*rb%v(2, b), rb%lock(2, b)) &
+                                        + merge(0.0_wp, jc(3)*rb%w(b), rb%lock(3, b)))
         end do
       end do
     end do
@@ -270,28 +285,49 @@ contains
       b = mc%lrb(e)
       rb%force(:, b) = rb%force(:, b) + mc%lrj(:, e)*mc%p(mc%lrc(e))
     end do
-    do b = 1, rb%n
-      rb%v(:, b) = rb%v(:, b) + dt*rb%force(1:2, b)/rb%m(b)
-      rb%w(b) = rb%w(b) + dt*rb%force(3, b)/rb%inertia(b)
+    do b = 1, rb%n   ! (a degree of freedom held by a wall: its impulse goes to the wall, rb_walls)
+      if (.not. rb%lock(1, b)) rb%v(1, b) = rb%v(1, b) + dt*rb%force(1, b)/rb%m(b)
+      if (.not. rb%lock(2, b)) rb%v(2, b) = rb%v(2, b) + dt*rb%force(2, b)/rb%m(b)
+      if (.not. rb%lock(3, b)) rb%w(b) = rb%w(b) + dt*rb%force(3, b)/rb%inertia(b)
     end do
   end subroutine rb_impulse
 
-  subroutine rb_walls(rb, g, p, dt)
-    !! The closed walls hold the bodies. A particle's domain corner farthest out towards a wall is
-    !! a contact if it would reach the wall within the step; its normal speed after the step must
+  subroutine rb_walls(rb, g, p, dt, locks)
+    !! The closed walls hold the bodies. The domain corner of a particle farthest out towards a wall
+    !! is a contact if it would reach the wall within the step; its normal speed after the step must
     !! then be at least -gap / dt (0 once it touches). Projected Gauss-Seidel on the accumulated
-    !! normal impulses (>= 0) and the friction impulses (|lambda_t| <= mu lambda_n).
+    !! normal impulses (>= 0) and the friction impulses (|lambda_t| <= mu lambda_n), with the lever
+    !! arm of the corner.
+    !! locks = .true. (before the pressure solve): the velocity is left as it was; the contacts are
+    !! found for the velocity the body would have with the water's force of the last step (p%aw of
+    !! its particles), and a body pressed onto a wall is held along that wall's normal in the solve
+    !! (rb%lock; and in rotation when it is pressed on both sides of its centre), so that its push
+    !! into the wall is not read as a sink by the water beside it.
     type(rbody_t), intent(inout) :: rb
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     real(wp), intent(in) :: dt
+    logical, intent(in) :: locks
     integer(ik) :: b, ip, side, nc, e, sweep
-    real(wp) :: n(2), plane, gap, ext, r(2), vn, vt, t(2), rn, rt, kn, kt, dl, lnew, lo, hi
-    real(wp) :: xmin(2), xmax(2)
+    real(wp) :: n(2), plane, gap, ext, r(2), vn, vt, t(2), rn, rt, kn, kt, dl, lnew, lo, hi, s1, s2
+    real(wp) :: xmin(2), xmax(2), vsave(2), wsave, fl(2), mb
+    logical :: left, right
     if (rb%n == 0) return
     xmin = g%origin
     xmax = g%origin + real(g%ncell, wp)*g%h
     do b = 1, rb%n
+      vsave = rb%v(:, b)
+      wsave = rb%w(b)
+      if (locks) then   ! the water's force of the last step, per unit mass (the same on every particle)
+        fl = 0.0_wp
+        mb = 0.0_wp
+        do ip = 1, p%n
+          if (rb%slot(ip) /= b) cycle
+          fl = fl + p%m(ip)*p%aw(:, ip)
+          mb = mb + p%m(ip)
+        end do
+        rb%v(:, b) = rb%v(:, b) + dt*fl/mb
+      end if
       nc = 0
       do ip = 1, p%n
         if (rb%slot(ip) /= b) cycle
@@ -307,48 +343,67 @@ contains
           case default
             n = [0.0_wp, -1.0_wp]; plane = -xmax(2)
           end select
+          s1 = sign(1.0_wp, dot_product(n, p%r(1:2, ip)))
+          s2 = sign(1.0_wp, dot_product(n, p%r(3:4, ip)))
           ext = abs(dot_product(n, p%r(1:2, ip))) + abs(dot_product(n, p%r(3:4, ip)))
           gap = dot_product(n, p%x(:, ip)) - ext - plane
-          r = p%x(:, ip) - rb%xc(:, b)
+          r = p%x(:, ip) - s1*p%r(1:2, ip) - s2*p%r(3:4, ip) - rb%xc(:, b)   ! the corner, from X
           vn = dot_product(n, rb%v(:, b)) + rb%w(b)*(r(1)*n(2) - r(2)*n(1))
           if (gap + dt*min(vn, 0.0_wp) >= 0.0_wp) cycle
           nc = nc + 1
           rb%cp(nc) = ip
           rb%cn(:, nc) = n
+          rb%cr(:, nc) = r
           rb%cmin(nc) = -max(gap, 0.0_wp)/dt
           rb%cl(nc) = 0.0_wp
           rb%ct(nc) = 0.0_wp
         end do
       end do
-      if (nc == 0) cycle
-      rb%flight(b) = .false.
-      do sweep = 1, CONTACT_SWEEPS
-        do e = 1, nc
-          n = rb%cn(:, e)
-          t = [-n(2), n(1)]
-          r = p%x(:, rb%cp(e)) - rb%xc(:, b)
-          rn = r(1)*n(2) - r(2)*n(1)
-          rt = r(1)*t(2) - r(2)*t(1)
-          kn = 1.0_wp/rb%m(b) + rn**2/rb%inertia(b)
-          vn = dot_product(n, rb%v(:, b)) + rb%w(b)*rn
-          lnew = max(rb%cl(e) + (rb%cmin(e) - vn)/kn, 0.0_wp)
-          dl = lnew - rb%cl(e)
-          rb%cl(e) = lnew
-          rb%v(:, b) = rb%v(:, b) + dl*n/rb%m(b)
-          rb%w(b) = rb%w(b) + dl*rn/rb%inertia(b)
-          if (rb%friction(b) > 0.0_wp) then
-            kt = 1.0_wp/rb%m(b) + rt**2/rb%inertia(b)
-            vt = dot_product(t, rb%v(:, b)) + rb%w(b)*rt
-            hi = rb%friction(b)*rb%cl(e)
-            lo = -hi
-            lnew = min(max(rb%ct(e) - vt/kt, lo), hi)
-            dl = lnew - rb%ct(e)
-            rb%ct(e) = lnew
-            rb%v(:, b) = rb%v(:, b) + dl*t/rb%m(b)
-            rb%w(b) = rb%w(b) + dl*rt/rb%inertia(b)
-          end if
+      if (nc > 0) then
+        if (.not. locks) rb%flight(b) = .false.
+        do sweep = 1, CONTACT_SWEEPS
+          do e = 1, nc
+            n = rb%cn(:, e)
+            t = [-n(2), n(1)]
+            r = rb%cr(:, e)
+            rn = r(1)*n(2) - r(2)*n(1)
+            rt = r(1)*t(2) - r(2)*t(1)
+            kn = 1.0_wp/rb%m(b) + rn**2/rb%inertia(b)
+            vn = dot_product(n, rb%v(:, b)) + rb%w(b)*rn
+            lnew = max(rb%cl(e) + (rb%cmin(e) - vn)/kn, 0.0_wp)
+            dl = lnew - rb%cl(e)
+            rb%cl(e) = lnew
+            rb%v(:, b) = rb%v(:, b) + dl*n/rb%m(b)
+            rb%w(b) = rb%w(b) + dl*rn/rb%inertia(b)
+            if (rb%friction(b) > 0.0_wp) then
+              kt = 1.0_wp/rb%m(b) + rt**2/rb%inertia(b)
+              vt = dot_product(t, rb%v(:, b)) + rb%w(b)*rt
+              hi = rb%friction(b)*rb%cl(e)
+              lo = -hi
+              lnew = min(max(rb%ct(e) - vt/kt, lo), hi)
+              dl = lnew - rb%ct(e)
+              rb%ct(e) = lnew
+              rb%v(:, b) = rb%v(:, b) + dl*t/rb%m(b)
+              rb%w(b) = rb%w(b) + dl*rt/rb%inertia(b)
+            end if
+          end do
         end do
-      end do
+      end if
+      if (locks) then
+        rb%v(:, b) = vsave
+        rb%w(b) = wsave
+        do side = 1, 2   ! axis x (walls left, right), y (floor, top)
+          left = .false.
+          right = .false.
+          do e = 1, nc
+            if (.not. (rb%cl(e) > 0.0_wp) .or. abs(rb%cn(side, e)) /= 1.0_wp) cycle
+            rb%lock(side, b) = .true.
+            if (rb%cr(3 - side, e) < 0.0_wp) left = .true.
+            if (rb%cr(3 - side, e) > 0.0_wp) right = .true.
+          end do
+          if (left .and. right) rb%lock(3, b) = .true.
+        end do
+      end if
     end do
   end subroutine rb_walls
 
@@ -393,6 +448,7 @@ contains
       p%psi(ip) = 0.0_wp
       p%vol(ip) = p%vol0(ip)
       p%jbar(ip) = 1.0_wp
+      p%aw(:, ip) = rb%force(1:2, b)/rb%m(b)   ! the water's force of this step: next step's wall locks
       ke = ke + 0.5_wp*p%m(ip)*(p%v(1, ip)**2 + p%v(2, ip)**2)
       mom = mom + p%m(ip)*p%v(:, ip)
       wg = wg + p%m(ip)*dot_product(gravity, p%x(:, ip) - xo)
