@@ -310,3 +310,28 @@ def test_horizontally_thrown_submerged_body_is_slowed_by_the_water():
     sim.close()
     assert 0.3 * 0.3 < v1 < 0.3 * 0.8   # m / (m + C rho b^2), C ~ 1.2 for a square: 0.14
     assert 0.0 < v2 < v1
+
+
+@pytest.mark.parametrize("width, expect", [(0.4, "upright"), (0.2, "diagonal"), (0.12, "on its side")])
+def test_floating_body_turns_as_hydrostatic_stability_theory_says(width, expect):
+    # a block 0.2 m high, rho_s = 500 (s = 1/2), released at its draft tilted by 5 degrees. Upright it is
+    # stable iff the metacentric height BM - BG = W^2 / (12 s H) - H (1 - s) / 2 > 0, i.e. (W/H)^2 > 6 s (1 - s)
+    # = 1.5: W = 0.4 m rights itself; W = 0.12 m capsizes onto its side; the square (W = 0.2 m) floats
+    # on a diagonal (squares do for 0.21 < s < 0.79) and rocks about 45 degrees. Measured angles at
+    # 0.5 s intervals to 4 s: W = 0.4: -4.6 ... 0.4; W = 0.2: 20 ... 32, mean of the last half 46;
+    # W = 0.12: 76 ... 105.
+    x0 = 0.5 - width / 2
+    sim, nw = tank(((0.0, 0.0), (1.0, 0.5)), ((x0, 0.4), (x0 + width, 0.6)), 500.0, angle=np.radians(5.0))
+    angles = []
+    for k in range(1, 9):
+        sim.advance(0.5 * k)
+        F = sim.state()["F"][nw:]   # the turn since release, [F11, F21, F12, F22]
+        angles.append(float(np.degrees(np.arctan2(F[:, 1], F[:, 0]).mean())) + 5.0)
+    sim.close()
+    late = np.array(angles[4:])
+    if expect == "upright":
+        assert np.abs(late).max() < 2.5 and abs(angles[-1]) < abs(angles[0])
+    elif expect == "diagonal":
+        assert 30.0 < late.mean() < 60.0
+    else:
+        assert late.min() > 60.0
