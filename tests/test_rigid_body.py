@@ -209,23 +209,28 @@ def test_friction_stops_a_sliding_body_and_frictionless_walls_do_not():
     assert v_0 == pytest.approx(0.5, abs=1e-12)
 
 
-def test_rigid_body_needs_the_incompressible_water_and_no_deformable_solid():
-    sim, nw = tank(((0.0, 0.0), (1.0, 0.5)), ((0.4, 0.1), (0.6, 0.3)), 500.0)
-    sim.set_options(fluid="weakly_compressible")
-    with pytest.raises(CpdiError, match="rigid_body.*incompressible"):
-        sim.advance(0.1)
-    sim.close()
+def three_bodies(third: dict) -> Simulation:
+    """Three one-particle bodies in incompressible water's 1 m tank: water, a rigid_body, and `third`."""
     sim = Simulation()
     sim.set_grid((0.0, 0.0), (20, 20), H, {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"})
     sim.set_materials([{"model": "newtonian_fluid", "density": RHO, "bulk_modulus": 1.0},
-                       {"model": "rigid_body", "density": 500.0},
-                       {"model": "hencky", "density": 500.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3}])
+                       {"model": "rigid_body", "density": 500.0}, third])
     x = np.array([[0.1, 0.1], [0.5, 0.5], [0.8, 0.5]])
     d = H / 2
     sim.set_particles(x, np.zeros((3, 2)), np.full(3, d * d * 500), np.full(3, d * d),
                       np.tile([d / 2, 0, 0, d / 2], (3, 1)), np.array([0, 1, 2]))
     sim.set_bodies(np.array([0, 1, 2]))
     sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible")
+    return sim
+
+
+def test_rigid_body_needs_the_incompressible_water_and_no_deformable_solid():
+    sim, nw = tank(((0.0, 0.0), (1.0, 0.5)), ((0.4, 0.1), (0.6, 0.3)), 500.0)
+    sim.set_options(fluid="weakly_compressible")
+    with pytest.raises(CpdiError, match="rigid_body.*incompressible"):
+        sim.advance(0.1)
+    sim.close()
+    sim = three_bodies({"model": "hencky", "density": 500.0, "youngs_modulus": 1e6, "poisson_ratio": 0.3})
     with pytest.raises(CpdiError, match="cannot yet share a run with a deformable solid"):
         sim.advance(0.1)
     sim.close()
@@ -236,16 +241,7 @@ def test_rigid_body_needs_the_incompressible_water_and_no_deformable_solid():
 @pytest.mark.parametrize("second", ["rigid_body", "rigid"])
 def test_a_second_rigid_body_is_refused_until_bodies_touch(second):
     # free bodies touch only the walls: a second body (free or prescribed) would pass through
-    sim = Simulation()
-    sim.set_grid((0.0, 0.0), (20, 20), H, {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"})
-    sim.set_materials([{"model": "newtonian_fluid", "density": RHO, "bulk_modulus": 1.0},
-                       {"model": "rigid_body", "density": 500.0}, {"model": second, "density": 500.0}])
-    x = np.array([[0.1, 0.1], [0.5, 0.5], [0.8, 0.5]])
-    d = H / 2
-    sim.set_particles(x, np.zeros((3, 2)), np.full(3, d * d * 500), np.full(3, d * d),
-                      np.tile([d / 2, 0, 0, d / 2], (3, 1)), np.array([0, 1, 2]))
-    sim.set_bodies(np.array([0, 1, 2]))
-    sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible")
+    sim = three_bodies({"model": second, "density": 500.0})
     with pytest.raises(CpdiError, match="pass through one another"):
         sim.advance(0.1)
     sim.close()
