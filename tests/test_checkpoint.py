@@ -23,6 +23,8 @@ from harness.solver import FULL_STATE_ROWS, FULL_STATE_SCALARS, CpdiError
 REPO = Path(__file__).resolve().parent.parent
 WATER = REPO / "cases" / "water_column.toml"
 OBSTACLE = REPO / "cases" / "elastic_obstacle.toml"
+SINKING = REPO / "cases" / "sinking_block.toml"
+RIGID_BODY = ["materials.1.model=rigid_body", "solver.t_end=2.0"]   # the block as a free rigid body
 SMALL = ["grid.cell=0.0146", "solver.t_end=0.1"]  # 800 particles (incompressible water: ~30 steps)
 # the case's weakly compressible comparison (explicit: ~800 steps for SMALL)
 WEAKLY = ['solver.fluid="weakly_compressible"', 'solver.transfer="flip"']
@@ -85,6 +87,10 @@ def assert_same_run(ref: Path, other: Path):
     (OBSTACLE, ["grid.cell=0.0146", "contact.enabled=true", "contact.friction=0.3", 'solver.projection="nodal"',
                 "bodies.1.geometry.min=[0.16, 0.004]", "bodies.1.geometry.max=[0.172, 0.08]",
                 "bodies.2.geometry.min=[0.16, 0.0]", "bodies.2.geometry.max=[0.172, 0.004]"], 0.045, 0.07),
+    # a free rigid body sinking through the water, and resting on the floor (the walls hold it in the
+    # pressure solve, decided from the water's force of the step before: p%aw, full state rows 26-27)
+    (SINKING, RIGID_BODY, 0.4, 0.5),
+    (SINKING, RIGID_BODY, 1.7, 1.8),
 ])
 def test_full_state_restores_bit_for_bit(path, sets, t1, t2):
     case = load(path, sets)
