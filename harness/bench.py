@@ -30,7 +30,7 @@ of both builds. The affinity mask, the load average and the OpenMP settings are 
 are printed and stored (bench.json "gates"); like every bench result they do not change the
 exit code (0 unless a run crashed).
 
-Outputs: reports/bench/bench.json (the contract in DESIGN.md), bench.png (particle-updates
+Outputs: reports/bench/bench.json (its contract: docs/design.md, "Interface contract"), bench.png (particle-updates
 per second against particles, 1 and 2 threads), phases.png (where a step's time goes) and
 scaling.png (speed-up against threads).
 """

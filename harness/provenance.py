@@ -3,7 +3,7 @@
 :func:`collect` never raises: every probe is isolated and a failing probe yields
 ``"unknown"`` (``"missing"`` for Python packages that are not installed). The keys
 ``git_sha``, ``dirty``, ``compiler``, ``fflags``, ``numpy`` and ``date`` are part of the
-``metrics.json`` contract (DESIGN.md).
+``metrics.json`` contract (docs/design.md, "Interface contract").
 """
 
 from __future__ import annotations

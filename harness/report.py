@@ -1,6 +1,6 @@
 """Verification report writer: metrics.json, provenance.json, results.json, report.md, index.html.
 
-Layout of a report directory (DESIGN.md, "metrics.json" contract)::
+Layout of a report directory (docs/design.md, "Interface contract")::
 
     <out_dir>/metrics.json     machine-readable verdicts (schema 1)
     <out_dir>/provenance.json  code/toolchain/machine provenance
