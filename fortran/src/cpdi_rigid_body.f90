@@ -27,7 +27,7 @@ module cpdi_rigid_body
   !!
   !! The body sets no acoustic step: the step's limit is its fastest particle's speed, as the water's.
   use cpdi_kinds, only: wp, ik
-  use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_INPUT
+  use cpdi_status, only: status_t, CPDI_ERR_ALLOC
   use cpdi_particles, only: particles_t
   use cpdi_grid, only: grid_t, WALL_OPEN
   use cpdi_pressure, only: mac_t, CELL_FLUID, CELL_SOLID
@@ -108,14 +108,8 @@ contains
     rb%xv = 0.0_wp; rb%lock = .false.; rb%flight = .true.; rb%v0 = 0.0_wp; rb%vol = 0.0_wp
     rb%uvb = 0.0_wp; rb%vvb = 0.0_wp
     rb%friction = 0.0_wp
-    do ip = 1, p%n
+    do ip = 1, p%n   ! (material_init has refused a negative coefficient)
       if (rb%slot(ip) /= 0) rb%friction(rb%slot(ip)) = friction(p%mat(ip))
-    end do
-    do ip = 1, rb%n
-      if (.not. (rb%friction(ip) >= 0.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'a rigid_body friction coefficient must be >= 0')
-        return
-      end if
     end do
   end subroutine rb_prepare
 
