@@ -114,7 +114,7 @@ memcheck: venv
 	  $(DEBUG_BUILD)/fortran/cpdi_memcheck
 
 lint: venv
-	@$(VENV)/bin/ruff check harness tests
+	@$(VENV)/bin/ruff check harness tests tools
 
 clean:
 	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so $(EXT_STAMP) runs .bench-base
