@@ -324,8 +324,6 @@ def _polygon_problem(pts: list[list[float]]) -> str | None:
             return f"vertices {i} and {(i + 1) % n} coincide; remove one"
     area2 = sum(pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1] for i in range(n))
     scale = max(max(abs(x) for p in pts for x in p), 1e-300)
-    if abs(area2) <= 1e-12 * scale * scale:
-        return "the polygon has no area (its vertices lie on a line); give its corners"
 
     def orient(a, b, c):
         v = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
@@ -345,6 +343,8 @@ def _polygon_problem(pts: list[list[float]]) -> str | None:
                     or (o3 == 0 and on(c, d, a)) or (o4 == 0 and on(c, d, b))):
                 return (f"edges {i}-{(i + 1) % n} and {j}-{(j + 1) % n} cross or touch: the polygon intersects "
                         "itself; list its corners in order around its boundary")
+    if abs(area2) <= 1e-12 * scale * scale:
+        return "the polygon has no area (its vertices lie on a line); give its corners"
     if area2 < 0:
         return "the vertices run clockwise; list them counter-clockwise (reverse the list)"
     return None
