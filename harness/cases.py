@@ -60,13 +60,19 @@ def positive_vec(v):
 WALL = ("slip", "noslip", "open")
 
 GEOMETRY = {
-    "type": Key("choice", "shape of the body", choices=("rectangle", "annulus"), required=True),
-    "min": Key("vec2", "lower-left corner (rectangle)", "m"),
-    "max": Key("vec2", "upper-right corner (rectangle)", "m"),
-    "center": Key("vec2", "centre (annulus)", "m"),
+    "type": Key("choice", "shape of the body", choices=("rectangle", "annulus", "disc", "polygon"), required=True),
+    "min": Key("vec2", "lower-left corner (rectangle, before its rotation)", "m"),
+    "max": Key("vec2", "upper-right corner (rectangle, before its rotation)", "m"),
+    "angle": Key("float", "rotation about the rectangle's centre, counter-clockwise; default 0 (rectangle)",
+                 "deg"),
+    "center": Key("vec2", "centre (annulus, disc)", "m"),
     "r_inner": Key("float", "inner radius (annulus)", "m", check=nonneg),
     "r_outer": Key("float", "outer radius (annulus)", "m", check=positive),
+    "radius": Key("float", "radius (disc)", "m", check=positive),
+    "vertices": Key("points", "corners [[x, y], ...], counter-clockwise, not self-intersecting (polygon)", "m"),
 }
+GEOMETRY_KEYS = {"rectangle": ("min", "max", "angle"), "annulus": ("center", "r_inner", "r_outer"),
+                 "disc": ("center", "radius"), "polygon": ("vertices",)}
 
 PROBE = {
     "kind": Key("choice", "what to measure (defaults to the probe's name)",
@@ -162,6 +168,9 @@ MATERIAL = {
     "bulk_modulus": Key("float", "bulk modulus K (newtonian_fluid)", "Pa", check=positive),
     "viscosity": Key("float", "dynamic viscosity (newtonian_fluid)", "Pa s", default=0.0, check=nonneg),
     "velocity": Key("vec2", "prescribed velocity (rigid)", "m/s", default=[0.0, 0.0]),
+    "velocity_table": Key("rows3", "prescribed velocity in time, rows [t, vx, vy] with t increasing: piecewise "
+                                   "linear, held before the first and after the last row (rigid; replaces velocity)",
+                          "s, m/s"),
     "friction": Key("float", "Coulomb friction coefficient against the walls (rigid_body)", default=0.0,
                     check=nonneg),
     "projection": Key("bool", "takes part in the volumetric projection (default: fluids yes, solids no)"),
@@ -181,6 +190,12 @@ BODY = {
     "ppc": Key("int", "particles per cell per direction", default=2,
                check=lambda v: None if 1 <= v <= 8 else "must be between 1 and 8"),
     "velocity": Key("vec2", "initial velocity", "m/s", default=[0.0, 0.0]),
+    "omega": Key("float", "initial angular velocity about the body's centroid, counter-clockwise: "
+                          "v = velocity + omega x (x - centroid) (not for rigid)", "1/s", default=0.0),
+    "fill": Key("choice", "solid: the whole region; around: the region less every earlier body (water "
+                          "around a disc or a wedge)", choices=("solid", "around"), default="solid"),
+    "subtract": Key("strlist", "names of earlier bodies whose particles this body leaves out (as fill = "
+                               "\"around\" does for all of them)"),
     "contact_group": Key("int", "bodies with the same group share a velocity field under contact "
                                 "(default: each body its own)", check=lambda v: None if v >= 0 else "must be >= 0"),
 }
@@ -196,6 +211,18 @@ def _suggest(key: str, allowed) -> str:
     if close:
         return f"; did you mean '{close[0]}'?"
     return f"; allowed keys: {', '.join(sorted(allowed))}"
+
+
+def _number_rows(path: str, value, width: int, least: int, what: str) -> list[list[float]]:
+    """A list of at least `least` rows of `width` finite numbers, as floats."""
+    if (not isinstance(value, list) or len(value) < least
+            or any(not isinstance(r, list) or len(r) != width
+                   or any(isinstance(x, bool) or not isinstance(x, int | float) for x in r) for r in value)):
+        raise CaseError(f"{path} = {value!r} must be a list of {what}")
+    value = [[float(x) for x in r] for r in value]
+    if not all(math.isfinite(x) for r in value for x in r):
+        raise CaseError(f"{path} = {value!r} must be finite")
+    return value
 
 
 def _coerce(path: str, spec: Key, value):
@@ -226,6 +253,20 @@ def _coerce(path: str, spec: Key, value):
         value = [float(x) for x in value]
         if not all(math.isfinite(x) for x in value):
             raise CaseError(f"{path} = {value!r} must be finite")
+        return value
+    if kind == "points":
+        return _number_rows(path, value, 2, 3, "at least three [x, y] points, e.g. [[0.0, 0.0], [1.0, 0.0], "
+                                               "[0.0, 1.0]]")
+    if kind == "rows3":
+        value = _number_rows(path, value, 3, 1, "[t, vx, vy] rows, e.g. [[0.0, 0.0, -1.0], [0.1, 0.0, -2.0]]")
+        bad = [i for i in range(1, len(value)) if not value[i][0] > value[i - 1][0]]
+        if bad:
+            raise CaseError(f"{path}: the times must increase strictly, row {bad[0]} (t = {value[bad[0]][0]:g}) "
+                            f"does not follow row {bad[0] - 1} (t = {value[bad[0] - 1][0]:g}); sort the rows by time")
+        return value
+    if kind == "strlist":
+        if not isinstance(value, list) or not value or not all(isinstance(x, str) for x in value):
+            raise CaseError(f"{path} = {value!r} must be a non-empty list of body names, e.g. [\"disc\"]")
         return value
     if kind == "choice":
         if not isinstance(value, str) or value not in spec.choices:
@@ -275,25 +316,92 @@ def _validate_list(path: str, schema: dict[str, Key], data) -> list[dict[str, An
     return [_validate_table(f"{path}[{i}]", schema, item) for i, item in enumerate(data)]
 
 
+def _polygon_problem(pts: list[list[float]]) -> str | None:
+    """Why a polygon is not a simple counter-clockwise one (None if it is)."""
+    n = len(pts)
+    for i in range(n):
+        if pts[i] == pts[(i + 1) % n]:
+            return f"vertices {i} and {(i + 1) % n} coincide; remove one"
+    area2 = sum(pts[i][0] * pts[(i + 1) % n][1] - pts[(i + 1) % n][0] * pts[i][1] for i in range(n))
+    scale = max(max(abs(x) for p in pts for x in p), 1e-300)
+
+    def orient(a, b, c):
+        v = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        return 0 if abs(v) <= 1e-14 * scale * scale else (1 if v > 0 else -1)
+
+    def on(a, b, c):  # c on the segment a-b (collinear)
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
+
+    for i in range(n):
+        a, b = pts[i], pts[(i + 1) % n]
+        for j in range(i + 1, n):
+            if j == i or (j + 1) % n == i or j == (i + 1) % n:
+                continue  # adjacent edges share a vertex
+            c, d = pts[j], pts[(j + 1) % n]
+            o1, o2, o3, o4 = orient(a, b, c), orient(a, b, d), orient(c, d, a), orient(c, d, b)
+            if ((o1 * o2 < 0 and o3 * o4 < 0) or (o1 == 0 and on(a, b, c)) or (o2 == 0 and on(a, b, d))
+                    or (o3 == 0 and on(c, d, a)) or (o4 == 0 and on(c, d, b))):
+                return (f"edges {i}-{(i + 1) % n} and {j}-{(j + 1) % n} cross or touch: the polygon intersects "
+                        "itself; list its corners in order around its boundary")
+    if abs(area2) <= 1e-12 * scale * scale:
+        return "the polygon has no area (its vertices lie on a line); give its corners"
+    if area2 < 0:
+        return "the vertices run clockwise; list them counter-clockwise (reverse the list)"
+    return None
+
+
+def geometry_bounds(geo: dict) -> tuple[list[float], list[float]]:
+    """Lower-left and upper-right corners of a validated geometry's bounding box."""
+    kind = geo["type"]
+    if kind == "rectangle":
+        lo, hi = geo["min"], geo["max"]
+        a = math.radians(geo.get("angle", 0.0))
+        if a == 0.0:
+            return list(lo), list(hi)
+        c = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2]
+        hw, hh = (hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2
+        ex = abs(math.cos(a)) * hw + abs(math.sin(a)) * hh
+        ey = abs(math.sin(a)) * hw + abs(math.cos(a)) * hh
+        return [c[0] - ex, c[1] - ey], [c[0] + ex, c[1] + ey]
+    if kind == "polygon":
+        xs, ys = [p[0] for p in geo["vertices"]], [p[1] for p in geo["vertices"]]
+        return [min(xs), min(ys)], [max(xs), max(ys)]
+    c, r = geo["center"], geo["r_outer"] if kind == "annulus" else geo["radius"]
+    return [c[0] - r, c[1] - r], [c[0] + r, c[1] + r]
+
+
 def _validate_geometry(where: str, geo: dict, grid: dict) -> None:
     lo = grid["origin"]
     hi = [lo[0] + grid["size"][0], lo[1] + grid["size"][1]]
-    if geo["type"] == "rectangle":
+    kind = geo["type"]
+    for k in geo:
+        if k != "type" and k not in GEOMETRY_KEYS[kind]:
+            raise CaseError(f"{where}.{k} does not apply to a {kind}; a {kind} takes "
+                            f"{', '.join(GEOMETRY_KEYS[kind])}")
+    if kind == "rectangle":
         for k in ("min", "max"):
             if k not in geo:
                 raise CaseError(f"missing required key '{where}.{k}' for a rectangle (m)")
         if not (geo["min"][0] < geo["max"][0] and geo["min"][1] < geo["max"][1]):
             raise CaseError(f"{where}: min {geo['min']} must lie below and left of max {geo['max']}")
-        bmin, bmax = geo["min"], geo["max"]
-    else:
+    elif kind == "annulus":
         for k in ("center", "r_outer"):
             if k not in geo:
                 raise CaseError(f"missing required key '{where}.{k}' for an annulus")
         geo.setdefault("r_inner", 0.0)
         if not geo["r_inner"] < geo["r_outer"]:
             raise CaseError(f"{where}: r_inner {geo['r_inner']} must be smaller than r_outer {geo['r_outer']}")
-        c, r = geo["center"], geo["r_outer"]
-        bmin, bmax = [c[0] - r, c[1] - r], [c[0] + r, c[1] + r]
+    elif kind == "disc":
+        for k in ("center", "radius"):
+            if k not in geo:
+                raise CaseError(f"missing required key '{where}.{k}' for a disc")
+    else:
+        if "vertices" not in geo:
+            raise CaseError(f"missing required key '{where}.vertices' for a polygon ([[x, y], ...], m)")
+        problem = _polygon_problem(geo["vertices"])
+        if problem:
+            raise CaseError(f"{where}.vertices: {problem}")
+    bmin, bmax = geometry_bounds(geo)
     tol = 1e-9 * max(grid["size"])
     if bmin[0] < lo[0] - tol or bmin[1] < lo[1] - tol or bmax[0] > hi[0] + tol or bmax[1] > hi[1] + tol:
         raise CaseError(f"{where} spans {bmin}-{bmax}, outside the grid {lo}-{hi}; enlarge [grid] size or move it")
@@ -321,6 +429,12 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
         raise CaseError(f"material names must be unique, got {names}")
     for i, m in enumerate(mats):
         m.setdefault("projection", m["model"] == "newtonian_fluid")
+        if "velocity_table" in m:
+            if m["model"] != "rigid":
+                raise CaseError(f"materials[{i}].velocity_table: only a rigid (prescribed) body follows a velocity "
+                                f"table, not model {m['model']}; use model = \"rigid\" or remove it")
+            if "velocity" in data["materials"][i]:
+                raise CaseError(f"materials[{i}]: give velocity (constant) or velocity_table, not both")
         for need in MODEL_NEEDS[m["model"]]:
             if need == "bulk_modulus" and data["solver"]["fluid"] == "incompressible":
                 continue  # incompressible water has no bulk modulus
@@ -335,6 +449,23 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
             raise CaseError(f"bodies[{i}].material = '{b['material']}' is not a defined material"
                             f"{_suggest(b['material'], names)}")
         _validate_geometry(f"bodies[{i}].geometry", b["geometry"], grid)
+        model = next(m["model"] for m in mats if m["name"] == b["material"])
+        if b["omega"] != 0.0 and model == "rigid":
+            raise CaseError(f"bodies[{i}].omega: a rigid body moves with its material's prescribed velocity; "
+                            "use model = \"rigid_body\" for a free body that spins, or remove omega")
+        if b["fill"] == "around" and i == 0:
+            raise CaseError(f"bodies[{i}].fill = 'around' needs earlier bodies to fill around; list this body "
+                            "after them")
+        if "subtract" in b:
+            if b["fill"] == "around":
+                raise CaseError(f"bodies[{i}]: give fill = 'around' (every earlier body) or subtract (some of "
+                                "them), not both")
+            earlier = [x["name"] for x in bodies[:i]]
+            for name in b["subtract"]:
+                if earlier.count(name) != 1 or not name:
+                    raise CaseError(f"bodies[{i}].subtract: '{name}' is not the name of exactly one earlier body"
+                                    f"{_suggest(name, [e for e in earlier if e]) if any(earlier) else ''}; name "
+                                    "the bodies to subtract and list them before this one")
         if solver["shape"] == "gimp" and b["ppc"] < 1:
             raise CaseError(f"bodies[{i}].ppc must be at least 1 for gimp")
     data["bodies"] = bodies

@@ -107,6 +107,9 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     if s["fluid"] == "incompressible":  # incompressible water has no bulk modulus; the solver's check wants one
         mats = [{**m, "bulk_modulus": m.get("bulk_modulus", 1.0)} for m in mats]
     sim.set_materials(mats)
+    for i, m in enumerate(mats):
+        if "velocity_table" in m:
+            sim.set_velocity_table(i, m["velocity_table"])
     sim.set_particles(parts.x, parts.v, parts.mass, parts.vol, parts.r, parts.mat)
     contact = case["contact"]
     sim.set_bodies(parts.group, contact=contact["enabled"], friction=contact["friction"],
@@ -147,6 +150,50 @@ def check_feasible(case: Case, sim: Simulation) -> None:
                     f"solver.max_estimated_steps = {s['max_estimated_steps']:.3g}; use fluid = \"incompressible\" "
                     "or a reduced bulk modulus (c = 10 sqrt(2 g H) is the usual choice), a coarser grid or a "
                     "shorter t_end, or raise solver.max_estimated_steps to run it anyway")
+
+
+SOLID_MODELS = ("hencky", "neo_hookean", "rigid", "rigid_body")
+
+
+class WaterLoads:
+    """The incompressible water's force and moment on each solid body of a case, per series row:
+    columns water_fx_<body>, water_fy_<body> [N/m] and water_moment_<body> [N m/m] (about the
+    body's mass centre, counter-clockwise), from Simulation.water_loads() (the last step's load on
+    each particle). <body> is the body's name, or body<i> for an unnamed one. None without solids
+    in incompressible water (the weakly compressible water's loads are not computed)."""
+
+    def __init__(self, case: Case, parts: ParticleSet):
+        models = {m["name"]: m["model"] for m in case["materials"]}
+        self.bodies: list[tuple[str, np.ndarray]] = []
+        if case["solver"]["fluid"] != "incompressible":
+            return
+        seen: set[str] = set()
+        for i, b in enumerate(case["bodies"]):
+            if models[b["material"]] not in SOLID_MODELS:
+                continue
+            label = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in b["name"]) or f"body{i}"
+            if label in seen:
+                label = f"{label}{i}"
+            seen.add(label)
+            self.bodies.append((label, np.flatnonzero(parts.body == i)))
+        self.mass = parts.mass
+
+    @property
+    def names(self) -> list[str]:
+        return [f"water_{q}_{label}" for label, _ in self.bodies for q in ("fx", "fy", "moment")]
+
+    def evaluate(self, sim: Simulation, x: np.ndarray) -> dict[str, float]:
+        if not self.bodies:
+            return {}
+        wl = sim.water_loads()
+        out = {}
+        for label, idx in self.bodies:
+            f, m = wl[idx, :2], self.mass[idx]
+            r = x[idx] - np.average(x[idx], axis=0, weights=m)
+            out[f"water_fx_{label}"] = float(f[:, 0].sum())
+            out[f"water_fy_{label}"] = float(f[:, 1].sum())
+            out[f"water_moment_{label}"] = float((r[:, 0] * f[:, 1] - r[:, 1] * f[:, 0]).sum() + wl[idx, 2].sum())
+        return out
 
 
 @dataclass
@@ -199,7 +246,8 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
         sim.close()
         raise
     probes = ProbeSet(case, parts)
-    columns = SERIES_BASE + probes.names
+    loads = WaterLoads(case, parts)
+    columns = SERIES_BASE + probes.names + loads.names
     rows: dict[str, list[float]] = {c: [] for c in columns}
     ck = None
     if restart is not None:  # read and check everything before any output is touched
@@ -249,6 +297,7 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
         row = {c: d.get(c, 0.0) for c in SERIES_BASE}
         row["t"] = t
         row.update(probes.evaluate(state["x"], state["v"]))
+        row.update(loads.evaluate(sim, state["x"]))
         for c in columns:
             rows[c].append(row[c])
         if series is not None:

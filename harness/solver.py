@@ -260,6 +260,17 @@ class Simulation:
         _call("cpdi_set_bodies", self._handle, (b.astype(np.int64) + 1).astype(np.int32), int(bool(contact)),
               float(friction), float(fullness))
 
+    def set_velocity_table(self, material: int, rows) -> None:
+        """Velocity table of rigid material ``material`` (0-based): rows (k, 3) of (t [s], vx, vy [m/s]),
+        times strictly increasing; piecewise linear in time, held before the first row and after the
+        last. Each step moves the body with the table's mean velocity over the step, so its
+        displacement is the table's integral to round-off (fortran/src/cpdi_motion.f90). Call it
+        after set_materials (which drops every table)."""
+        tab = _f64(rows, what="velocity table")
+        if tab.ndim != 2 or tab.shape[1] != 3 or tab.shape[0] < 1:
+            raise CpdiError(1, f"velocity table has shape {tab.shape}, expected (k, 3) rows of (t, vx, vy)")
+        _call("cpdi_set_velocity_table", self._handle, int(material) + 1, np.asfortranarray(tab.T))
+
     def set_body_force(self, b) -> None:
         """External body force per unit mass (n,2) [m/s^2], added to gravity until replaced."""
         _call("cpdi_set_body_force", self._handle, _particle_array(b, self._n, 2, "body force"))
@@ -327,6 +338,15 @@ class Simulation:
         """Force [N/m] of incompressible water on the solids coupled to it in the last step (the solid
         particles' momentum change by the projection over dt; zeros otherwise)."""
         return np.asarray(_call("cpdi_solid_force", self._handle), dtype=float)
+
+    def water_loads(self) -> np.ndarray:
+        """The incompressible water's load on every particle in the last step, (n, 3): force fx, fy
+        [N/m] and a couple c about the particle's centre [N m/m]; the moment about a point O of a
+        set of particles is sum (x_p - O) x f_p + c_p. Solids coupled to the water only (deformable,
+        prescribed rigid and free rigid bodies: fortran/src/cpdi_loads.f90); zeros elsewhere."""
+        if self._n < 1:
+            raise CpdiError(2, "no particles set; call set_particles first")
+        return _call("cpdi_water_loads", self._handle, self._n).T
 
     RIGID_BODY_COLUMNS = ("mass", "inertia", "x", "y", "vx", "vy", "omega", "fx", "fy", "torque")
 

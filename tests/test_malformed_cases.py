@@ -22,3 +22,37 @@ def test_malformed_case_is_refused_with_its_message(path):
         cases.load(path)
     assert expect in str(ei.value), f"message was: {ei.value}"
     assert str(path) in str(ei.value), "the message names the file"
+
+
+NEW_KEYS = [p for p in FILES if int(p.stem.split("_")[0]) >= 36]   # issue 40: geometry, fill, omega, tables
+
+
+def test_the_new_keys_have_their_malformed_cases():
+    # polygon, disc, angle, a key of another shape, fill, subtract, omega, velocity_table
+    assert len(NEW_KEYS) >= 19
+
+
+def test_cli_refuses_each_new_key_with_one_line_and_status_2():
+    """`python -m harness run` on each malformed case of the new keys: exit status 2, the message
+    on one line of stderr, no traceback. One interpreter runs them all, each through cli.main as
+    the command does (its exit status is main's return value)."""
+    import json
+    import subprocess
+    import sys
+
+    script = ("import json, sys, io, contextlib\nfrom harness import cli\nout = []\n"
+              "for f in sys.argv[1:]:\n"
+              "    err = io.StringIO()\n"
+              "    with contextlib.redirect_stderr(err):\n"
+              "        code = cli.main(['run', f, '--no-progress', '--out', '/nonexistent/never'])\n"
+              "    out.append((code, err.getvalue()))\n"
+              "print(json.dumps(out))\n")
+    p = subprocess.run([sys.executable, "-c", script, *map(str, NEW_KEYS)], capture_output=True, text=True,
+                       timeout=300, cwd=Path(__file__).resolve().parent.parent)
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    for path, (code, err) in zip(NEW_KEYS, json.loads(p.stdout.splitlines()[-1]), strict=True):
+        expect = path.read_text().splitlines()[0].removeprefix("# expect:").strip()
+        assert code == 2, (path.name, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and expect in lines[0], (path.name, err)

@@ -15,6 +15,7 @@ module cpdi_api
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_motion, only: vtable_set
   use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
@@ -38,6 +39,8 @@ module cpdi_api
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
   public :: cpdi_solid_force, cpdi_face_velocity, cpdi_rigid_bodies
+  ! Water entry (issue 40): velocity tables of prescribed rigid bodies, the water's load per particle.
+  public :: cpdi_set_velocity_table, cpdi_water_loads
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
@@ -168,6 +171,7 @@ contains
     if (st%ok() .and. nmat < 1) call st%set(CPDI_ERR_INPUT, 'at least one material is needed')
     if (st%ok()) then
       if (allocated(s%mats)) deallocate (s%mats, s%rigid, s%fluid)
+      if (allocated(s%vtab)) deallocate (s%vtab)   ! velocity tables belong to the materials they replace
       allocate (s%mats(nmat), s%rigid(nmat), s%fluid(nmat))
       do m = 1, nmat
         call material_init(s%mats(m), model(m), props(:, m), m, st)
@@ -574,6 +578,64 @@ contains
     if (st%ok()) f = s%inc%fsolid
     call finish(st, ierr, msg)
   end subroutine cpdi_solid_force
+
+  subroutine cpdi_set_velocity_table(handle, imat, nrow, rows, ierr, msg)
+    !! Give rigid material imat (1-based) a velocity table: rows(:, k) = [t, vx, vy] [s, m/s], times
+    !! strictly increasing; piecewise linear between rows, held before the first and after the last
+    !! (cpdi_motion). It replaces the material's constant velocity until set_materials is called again.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: imat, nrow
+    real(c_double), intent(in) :: rows(3, nrow)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    character(len=200) :: buf
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      if (.not. s%has_materials) call st%set(CPDI_ERR_STATE, 'set the materials before a velocity table')
+    end if
+    if (st%ok()) then
+      if (imat < 1 .or. imat > size(s%mats)) then
+        write (buf, '(a,i0,a,i0,a)') 'material ', imat, ' does not exist (there are ', size(s%mats), ')'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      else if (s%mats(imat)%model /= MAT_RIGID) then
+        write (buf, '(a,i0,a)') 'material ', imat, ' is not rigid: only a rigid (prescribed) body follows '// &
+          'a velocity table'
+        call st%set(CPDI_ERR_INPUT, trim(buf))
+      end if
+    end if
+    if (st%ok()) then
+      if (.not. allocated(s%vtab)) allocate (s%vtab(size(s%mats)))
+      call vtable_set(s%vtab(imat), rows, st)
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_set_velocity_table
+
+  subroutine cpdi_water_loads(handle, n, wl, ierr, msg)
+    !! The incompressible water's load on every solid particle in the last coupled step (cpdi_loads):
+    !! wl(:, ip) = [fx, fy, c], force [N/m] and couple about the particle's centre [N m/m]. The
+    !! moment about a point O of a set of particles is sum (x_p - O) x f_p + c_p. Zeros for water
+    !! particles, before the first step, and in runs without solids in incompressible water.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(out) :: wl(3, n)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    wl = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) then
+      if (n /= s%p%n) call st%set(CPDI_ERR_INPUT, 'n must equal the number of particles')
+    end if
+    if (st%ok()) then
+      if (allocated(s%ld%wl)) then
+        if (size(s%ld%wl, 2) == n) wl = s%ld%wl
+      end if
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_water_loads
 
   subroutine cpdi_get_timers(handle, timers, ierr, msg)
     !! Seconds spent per phase: shape, P2G, grid, G2P, deformation, stress, projection.

@@ -26,6 +26,7 @@ module cpdi_fsi
   use cpdi_sim, only: sim_t
   use cpdi_grid_update, only: impose_rigid
   use cpdi_rigid_body, only: rb_begin, rb_walls, rb_move
+  use cpdi_loads, only: loads_prepare, loads_rigid, loads_free
   implicit none
   private
 
@@ -46,6 +47,8 @@ contains
       if (.not. st%ok()) return
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
+    call loads_prepare(s%ld, s%p%n, s%g%nnodes, st)
+    if (.not. st%ok()) return
     s%inc%smax_w = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
     call solid_stress(s, cs, st)
     if (.not. st%ok()) return
@@ -87,6 +90,8 @@ contains
                      s%g%m(:, 1), s%g%vx(:, 1), s%g%vy(:, 1), s%g%fx(:, 1), s%g%fy(:, 1))
     if (.not. st%ok()) return
     s%inc%smax_w = s%smax   ! the water's signal speed (incomp_step); the solids' joins it below
+    ! the water's loads on the solids (cpdi_loads): prescribed bodies from the pressure, before they move
+    if (s%any_rigid) call loads_rigid(s%ld, s%p, s%rigid, s%inc%mc, s%g, s%inc%rho, s%opt%gravity)
     ! the solid particles gather the projection's change of their face velocities with the face
     ! weights their mass went to the faces with (momentum-conserving); the force of the water
     ! on the solids is that momentum change over dt (solid_g2p)
@@ -95,6 +100,7 @@ contains
     if (s%inc%rb%n > 0) then   ! the walls hold the bodies, which then move rigidly
       call rb_walls(s%inc%rb, s%g, s%p, dt, .false.)
       call rb_move(s%inc%rb, s%p, s%opt%gravity, dt, ke, mom, wg, vb)
+      call loads_free(s%ld, s%p, s%inc%rb)
       s%inc%fsolid = s%inc%fsolid + sum(s%inc%rb%force(1:2, :), dim=2)
       s%diag(4) = s%diag(4) + ke
       s%diag(6:7) = s%diag(6:7) + mom
@@ -241,6 +247,7 @@ contains
           vn = vn + dp
           dv = dv + dp
           fs = fs + p%m(ip)*dp/dt
+          s%ld%wl(:, ip) = [p%m(ip)*dp/dt, 0.0_wp]   ! the water's load (cpdi_loads), at the particle
           p%v(:, ip) = fl*(p%v(:, ip) + dv) + (1.0_wp - fl)*vn
           p%x(:, ip) = xo + dt*vn
           call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)

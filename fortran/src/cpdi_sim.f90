@@ -14,6 +14,8 @@ module cpdi_sim
   use cpdi_materials, only: material_t, KIN_LOG
   use cpdi_projection, only: projection_t, PROJ_NONE
   use cpdi_incompressible, only: incomp_t, FLUID_WEAKLY_COMPRESSIBLE
+  use cpdi_motion, only: vtable_t
+  use cpdi_loads, only: loads_t
   implicit none
   private
 
@@ -81,6 +83,8 @@ module cpdi_sim
     type(shape_t) :: sh
     type(projection_t) :: proj
     type(incomp_t) :: inc                    !! incompressible water: settings and staggered grid
+    type(loads_t) :: ld                      !! coupled runs: the water's load on every solid particle
+    type(vtable_t), allocatable :: vtab(:)   !! per material: a rigid body's velocity table (cpdi_motion)
     logical, allocatable :: pmask(:)         !! per particle: takes part in the projection
     type(options_t) :: opt
     real(wp) :: t = 0.0_wp

@@ -34,6 +34,7 @@ module cpdi_step
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
   use cpdi_fsi, only: fsi_prepare, fsi_step
+  use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
                       PROBE_COST
   use cpdi_grid_update, only: node_range, grid_update
@@ -273,6 +274,7 @@ contains
       call st%set(CPDI_ERR_STATE, 'time step is zero; check material moduli and densities')
       return
     end if
+    if (allocated(s%vtab)) call motion_apply(s%vtab, s%t, dt, s%mats, s%p, s%inc%rvel)   ! velocity tables
     proj = s%opt%projection /= PROJ_NONE
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
       if (s%inc%coupled) then
