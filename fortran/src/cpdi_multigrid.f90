@@ -50,6 +50,8 @@ module cpdi_multigrid
     !! included), is entry off(l) + i + j (nx(l) + 2) of the arrays.
     integer(ik) :: nlev = 0                      !! levels
     integer(ik) :: nx(MAXLEV) = 0, ny(MAXLEV) = 0, off(MAXLEV) = 0
+    integer(ik) :: roff(MAXLEV) = 0              !! row j of level l: entry roff(l) + j of ilo, ihi
+    integer(ik), allocatable :: ilo(:), ihi(:)   !! per row: first and last active cell (ilo > ihi: none)
     integer(ik), allocatable :: kind(:)          !! MG_ACTIVE, MG_DIRICHLET or MG_NEUMANN
     real(wp), allocatable :: ad(:)               !! diagonal
     real(wp), allocatable :: di(:)               !! 1 / diagonal (0 where the diagonal is not positive)
@@ -76,23 +78,26 @@ contains
     type(status_t), intent(inout) :: st
     integer(ik) :: l, n
     integer :: ierr
-    if (allocated(mg%kind)) deallocate (mg%kind, mg%ad, mg%di, mg%ae, mg%an, mg%wn, mg%x, mg%b, mg%t)
+    if (allocated(mg%kind)) deallocate (mg%kind, mg%ad, mg%di, mg%ae, mg%an, mg%wn, mg%x, mg%b, mg%t, mg%ilo, mg%ihi)
     mg%nx = 0
     mg%ny = 0
     mg%off = 0
+    mg%roff = 0
     l = 1
     mg%nx(1) = max(nx, 1_ik)
     mg%ny(1) = max(ny, 1_ik)
     mg%off(1) = 1
     do while (max(mg%nx(l), mg%ny(l)) > 2 .and. l < MAXLEV)
       mg%off(l + 1) = mg%off(l) + (mg%nx(l) + 2)*(mg%ny(l) + 2)
+      mg%roff(l + 1) = mg%roff(l) + mg%ny(l) + 2
       mg%nx(l + 1) = (mg%nx(l) + 1)/2
       mg%ny(l + 1) = (mg%ny(l) + 1)/2
       l = l + 1
     end do
     mg%nlev = l
     n = mg%off(l) + (mg%nx(l) + 2)*(mg%ny(l) + 2) - 1
-    allocate (mg%kind(n), mg%ad(n), mg%di(n), mg%ae(n), mg%an(n), mg%wn(n), mg%x(n), mg%b(n), mg%t(n), stat=ierr)
+    allocate (mg%kind(n), mg%ad(n), mg%di(n), mg%ae(n), mg%an(n), mg%wn(n), mg%x(n), mg%b(n), mg%t(n), &
+              mg%ilo(mg%roff(l) + mg%ny(l) + 2), mg%ihi(mg%roff(l) + mg%ny(l) + 2), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the multigrid levels; use a larger cell size')
       mg%nlev = 0
@@ -107,6 +112,8 @@ contains
     mg%x = 0.0_wp
     mg%b = 0.0_wp
     mg%t = 0.0_wp
+    mg%ilo = 1
+    mg%ihi = 0
   end subroutine mg_alloc
 
   subroutine mg_build(mg, base, n1, cell, fluid, air, adiag, ai, aj)
@@ -141,12 +148,33 @@ contains
     end do
     !$omp end parallel do
     call inverse_diagonal(mg, 1_ik)
+    call row_ranges(mg, 1_ik)
     do l = 1, mg%nlev - 1
       call coarsen(mg, l)
       call inverse_diagonal(mg, l + 1)
+      call row_ranges(mg, l + 1)
       call weights(mg, l)
     end do
   end subroutine mg_build
+
+  subroutine row_ranges(mg, l)
+    !! ilo, ihi of level l's rows: the loops of a V-cycle visit only the span of active cells of
+    !! each row (a dam break's water fills a tenth of its grid).
+    type(mg_t), intent(inout) :: mg
+    integer(ik), intent(in) :: l
+    integer(ik) :: i, j, k0
+    do j = 1, mg%ny(l)
+      k0 = at(mg, l, 0_ik, j)
+      mg%ilo(mg%roff(l) + j) = mg%nx(l) + 1
+      mg%ihi(mg%roff(l) + j) = 0
+      do i = 1, mg%nx(l)
+        if (mg%kind(k0 + i) == MG_ACTIVE) then
+          mg%ilo(mg%roff(l) + j) = min(mg%ilo(mg%roff(l) + j), i)
+          mg%ihi(mg%roff(l) + j) = i
+        end if
+      end do
+    end do
+  end subroutine row_ranges
 
   subroutine mg_apply(mg, base, n1, r, z)
     !! z = V r: one V-cycle for the lattice of mg_build (r read and z written on level 1's active
@@ -243,6 +271,7 @@ contains
       do i = 1, mg%nx(l)
         f = at(mg, l, i, j)
         mg%wn(f) = 0.0_wp
+        mg%t(f) = 0.0_wp   ! restrict reads wn t of every cell; the residual writes active rows' spans only
         if (mg%kind(f) /= MG_ACTIVE) cycle
         call parents(i, j, ci, cj, di, dj)
         w = 9.0_wp
@@ -254,6 +283,13 @@ contains
     end do
     !$omp end parallel do
   end subroutine weights
+
+  pure integer(ik) function lo_parity(i0, p)
+    !! The first i >= i0 with i + p even: with p = j + colour, the first cell of row j whose
+    !! colour mod(i + j, 2) is colour.
+    integer(ik), intent(in) :: i0, p
+    lo_parity = i0 + mod(i0 + p, 2_ik)
+  end function lo_parity
 
   pure subroutine parents(i, j, ci, cj, di, dj)
     !! Parent (ci, cj) of fine cell (i, j) and the side (di, dj = -1 or 1) of its nearer neighbours.
@@ -309,7 +345,7 @@ contains
     s = mg%nx(l) + 2
     !$omp parallel do if (mg%nx(l)*mg%ny(l) > PAR_MIN) default(shared) private(i, c)
     do j = 1, mg%ny(l)
-      do i = 1 + mod(j + 1 + colour, 2_ik), mg%nx(l), 2
+      do i = lo_parity(mg%ilo(mg%roff(l) + j), j + colour), mg%ihi(mg%roff(l) + j), 2
         c = at(mg, l, i, j)
         mg%x(c) = mg%di(c)*(mg%b(c) - mg%ae(c)*mg%x(c + 1) - mg%ae(c - 1)*mg%x(c - 1) - mg%an(c)*mg%x(c + s) &
                             - mg%an(c - s)*mg%x(c - s))
@@ -326,7 +362,7 @@ contains
     s = mg%nx(l) + 2
     !$omp parallel do if (mg%nx(l)*mg%ny(l) > PAR_MIN) default(shared) private(i, c)
     do j = 1, mg%ny(l)
-      do i = 1, mg%nx(l)
+      do i = mg%ilo(mg%roff(l) + j), mg%ihi(mg%roff(l) + j)
         c = at(mg, l, i, j)
         if (mg%kind(c) /= MG_ACTIVE) then
           mg%t(c) = 0.0_wp
@@ -348,7 +384,7 @@ contains
     real(wp) :: s, wy
     !$omp parallel do if (mg%nx(l)*mg%ny(l) > PAR_MIN) default(shared) private(ci, c, i, j, s, wy)
     do cj = 1, mg%ny(l + 1)
-      do ci = 1, mg%nx(l + 1)
+      do ci = mg%ilo(mg%roff(l + 1) + cj), mg%ihi(mg%roff(l + 1) + cj)
         c = at(mg, l + 1, ci, cj)
         mg%b(c) = 0.0_wp
         if (mg%kind(c) /= MG_ACTIVE) cycle
@@ -373,7 +409,7 @@ contains
     real(wp) :: s
     !$omp parallel do if (mg%nx(l)*mg%ny(l) > PAR_MIN) default(shared) private(i, f, ci, cj, di, dj, s)
     do j = 1, mg%ny(l)
-      do i = 1, mg%nx(l)
+      do i = mg%ilo(mg%roff(l) + j), mg%ihi(mg%roff(l) + j)
         f = at(mg, l, i, j)
         if (mg%kind(f) /= MG_ACTIVE) cycle
         call parents(i, j, ci, cj, di, dj)
