@@ -125,6 +125,7 @@ program memcheck_driver
                         [0.5_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options incompressible')
   call cpdi_set_option(h, 'fluid', 1.0_c_double, ierr, msg); call expect_ok('fluid incompressible')
+  call cpdi_set_option(h, 'pressure_precond', 0.0_c_double, ierr, msg); call expect_ok('mic0 preconditioner')
   call cpdi_advance(h, 0.025_c_double, 10, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible')
   call cpdi_set_option(h, 'pressure_precond', 1.0_c_double, ierr, msg); call expect_ok('multigrid preconditioner')
   call cpdi_advance(h, 0.05_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible, multigrid')
