@@ -143,6 +143,10 @@ SCHEMA: dict[str, Key] = {
         "coupling": Key("choice", "incompressible water with solids: mixture (one continuum on the faces) or batty "
                                   "(water-only pressure cells, the solid's boundary flux; docs/fsi_incompressible.md)",
                         choices=("mixture", "batty"), default="mixture"),
+        "pressure_precond": Key("choice", "incompressible: preconditioner of the pressure CG, mic0 (incomplete "
+                                          "Cholesky; iterations grow like sqrt(cells)) or multigrid (a geometric "
+                                          "multigrid V-cycle; iterations about constant)",
+                                choices=("mic0", "multigrid"), default="mic0"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

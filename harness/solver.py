@@ -25,6 +25,7 @@ PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
 TRANSFERS = {"flip": 0, "apic": 1}
 COUPLINGS = {"mixture": 0, "batty": 1}
+PRECONDS = {"mic0": 0, "multigrid": 1}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
@@ -218,12 +219,13 @@ class Simulation:
                     flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
                     fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
                     cg_max_iterations: int = 0, volume_correction: float = 0.5,
-                    coupling: str = "mixture") -> None:
+                    coupling: str = "mixture", pressure_precond: str = "mic0") -> None:
         """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
         ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
         ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG
         settings and ``volume_correction`` belong to it); ``coupling`` is how solids join that
-        water's projection (docs/fsi_incompressible.md)."""
+        water's projection (docs/fsi_incompressible.md); ``pressure_precond`` the pressure CG's
+        preconditioner, ``mic0`` or ``multigrid`` (docs/incompressible_water.md)."""
         table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
                  ("kinematics", kinematics, KINEMATICS))
         codes = []
@@ -237,7 +239,8 @@ class Simulation:
                          projection_stabilization], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
         for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS),
-                                    ("coupling", coupling, COUPLINGS)):
+                                    ("coupling", coupling, COUPLINGS),
+                                    ("pressure_precond", pressure_precond, PRECONDS)):
             if value not in allowed:
                 raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
             _call("cpdi_set_option", self._handle, key, float(allowed[value]))
@@ -303,6 +306,16 @@ class Simulation:
     def diagnostics(self) -> dict[str, float]:
         d = _call("cpdi_get_diag", self._handle)
         return dict(zip(DIAG_NAMES, (float(x) for x in d), strict=True))
+
+    def pressure_stats(self) -> dict[str, float]:
+        """The last pressure solve of an incompressible run: CG iterations, relative residual,
+        closed-water defect (the part of the right-hand side in the null space of closed water
+        regions, relative to its norm: round-off for a physical solve), closed water regions
+        and the preconditioner."""
+        s = _call("cpdi_pressure_stats", self._handle)
+        names = {v: k for k, v in PRECONDS.items()}
+        return {"iterations": int(s[0]), "residual": float(s[1]), "defect": float(s[2]),
+                "closed_regions": int(s[3]), "precond": names[int(s[4])]}
 
     def timers(self) -> dict[str, float]:
         t = _call("cpdi_get_timers", self._handle)

@@ -528,7 +528,8 @@ def test_water_sealed_in_a_falling_hollow_block_falls_with_it(packing):
     over (or not), falls through the air: everything moves at v = -g t (to 1e-12 m/s over 0.1 s).
     The pocket has no air face: a uniform pressure in it pushes on nothing, so its rows are
     singular and the volume correction's target (two-sided where no air is near) has to have its
-    mean removed there (cpl_pockets); without that the first solve diverged ("did not converge")."""
+    mean removed there (cpdi_pressure find_closed: regions connected through the couplings of A);
+    without that the first solve diverged ("did not converge")."""
     d = H_CELL / 2
     frame = lattice((0.3, 0.5), (0.6, 0.8), d)
     frame = frame[~((frame[:, 0] > 0.4) & (frame[:, 0] < 0.5) & (frame[:, 1] > 0.6) & (frame[:, 1] < 0.7))]

@@ -5,8 +5,9 @@ A mark's id is file:line:hash, the hash that of the mutated line's text. An edit
 line moves it and orphans the mark (tests/test_mutation_marks.py fails). This finds, for every
 orphaned mark, the mutant of the same file with the same hash (the same mutation of the same
 statement) and rewrites the id. Where the same text is mutated on several lines, the mutant whose
-diff equals the mark's and whose line is nearest to the old one is taken. A mark that matches
-none is listed for a human to re-read. Run from the repository root: .venv/bin/python tools/rekey_mutation_marks.py
+diff equals the mark's and whose line is nearest to the old one is taken, and listed for a human
+to check (a large shift can make the nearest the wrong one). A mark that matches none is listed
+too. Exit status 1 when anything is listed. Run from the repository root: .venv/bin/python tools/rekey_mutation_marks.py
 """
 
 from __future__ import annotations
@@ -39,8 +40,12 @@ def main() -> int:
         same = by_key.get((stem, digest), [])
         diff = diffs.get(old, "").strip()
         found = [m for m in same if len(same) == 1 or f"{m.before.strip()} -> {m.after.strip()}" == diff]
-        if found:
+        if len(found) == 1:
+            moves[old] = found[0].id
+        elif found:   # the same statement on several lines: the nearest is a guess, to be checked
             moves[old] = min(found, key=lambda m: abs(m.line - int(line))).id
+            unresolved.append(f"{old}: moved to the nearest of lines {sorted(m.line for m in found)}, "
+                              f"{moves[old]}; check its reason names that statement's routine")
         else:
             unresolved.append(f"{old}: no mutant with its hash and diff")
     lines = {tuple(old.split(":")[:2]): new.split(":")[1] for old, new in moves.items()}
@@ -54,7 +59,7 @@ def main() -> int:
     for old, new in sorted(moves.items()):
         print(f"moved {old} -> {new}")
     for line in unresolved:
-        print(f"NOT MOVED {line}: re-read the mark by hand")
+        print(f"CHECK {line}")
     return 1 if unresolved else 0
 
 

@@ -19,7 +19,7 @@ module cpdi_api
   use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
-                           CELL_SOLID
+                           CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
   implicit none
   private
 
@@ -42,6 +42,7 @@ module cpdi_api
   ! Water entry (issue 40): velocity tables of prescribed rigid bodies, the water's load per particle.
   public :: cpdi_set_velocity_table, cpdi_water_loads
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
+  public :: cpdi_poisson_precond, cpdi_pressure_stats
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
   integer, parameter :: NPSTATE = 27                !! rows per particle of the full state
@@ -656,7 +657,8 @@ contains
     !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
     !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
     !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
-    !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md).
+    !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
+    !! (the CG's preconditioner: 0 mic0, 1 multigrid).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -688,9 +690,11 @@ contains
                     'volume_correction must lie in [0, 2]; 0.1-1 is typical')
     case ('coupling')
       call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
+    case ('pressure_precond')
+      call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction or coupling')
+                  'cg_tolerance, cg_max_iterations, volume_correction, coupling or pressure_precond')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)
@@ -849,15 +853,60 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_poisson_apply
 
-  subroutine cpdi_poisson_project(nx, ny, cell, fill, u, v, dt, rho, h, beta, tol, maxit, p, uo, vo, iters, &
-                                  resid, ierr, msg)
-    !! Project the face field (u, v) of a test grid: solve for p, return the projected
-    !! faces uo, vo (unchanged where no water is adjacent), CG iterations and residual.
-    integer(c_int), intent(in) :: nx, ny, maxit
+  subroutine cpdi_poisson_precond(nx, ny, cell, fill, precond, r, z, ierr, msg)
+    !! z = M^-1 r: the CG's preconditioner precond (0 mic0, 1 multigrid) for the pressure operator
+    !! of a test grid (h = 1, as cpdi_poisson_apply), on its water cells (0 elsewhere).
+    integer(c_int), intent(in) :: nx, ny, precond
+    integer(c_int), intent(in) :: cell(nx*ny)
+    real(c_double), intent(in) :: fill(nx*ny), r(nx*ny)
+    real(c_double), intent(out) :: z(nx*ny)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(mac_t) :: mc
+    z = 0.0_wp
+    if (precond /= PRECOND_MIC0 .and. precond /= PRECOND_MULTIGRID) &
+      call st%set(CPDI_ERR_INPUT, 'precond must be 0 (mic0) or 1 (multigrid)')
+    if (st%ok()) call test_mac(mc, nx, ny, cell, fill, 1.0_wp, st)
+    if (st%ok()) then
+      mc%precond = precond
+      call mac_assemble(mc, 1.0_wp, 1.0_wp, 0.0_wp)
+      mc%r = 0.0_wp
+      where (mc%cell == CELL_FLUID) mc%r = r
+      call mac_precondition(mc, .true.)
+      z = mc%z
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_poisson_precond
+
+  subroutine cpdi_pressure_stats(handle, stats, ierr, msg)
+    !! The last pressure solve of an incompressible run: [CG iterations, relative residual,
+    !! closed-water defect of the right-hand side, closed water regions, preconditioner (0 mic0,
+    !! 1 multigrid)] (cpdi_pressure).
+    integer(c_int), intent(in) :: handle
+    real(c_double), intent(out) :: stats(5)
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    stats = 0.0_wp
+    call lookup(handle, s, st)
+    if (st%ok()) stats = [real(s%inc%mc%iters, wp), s%inc%mc%resid, s%inc%mc%defect, real(s%inc%mc%nfloat, wp), &
+                          real(s%inc%mc%precond, wp)]
+    call finish(st, ierr, msg)
+  end subroutine cpdi_pressure_stats
+
+  subroutine cpdi_poisson_project(nx, ny, cell, fill, u, v, dt, rho, h, beta, tol, maxit, precond, p, uo, vo, &
+                                  iters, resid, defect, nclosed, ierr, msg)
+    !! Project the face field (u, v) of a test grid: solve for p with the preconditioner precond
+    !! (0 mic0, 1 multigrid), return the projected faces uo, vo (unchanged where no water is
+    !! adjacent), CG iterations and residual, and the closed water regions' null-space defect
+    !! of the right-hand side and their count (cpdi_pressure).
+    integer(c_int), intent(in) :: nx, ny, maxit, precond
     integer(c_int), intent(in) :: cell(nx*ny)
     real(c_double), intent(in) :: fill(nx*ny), u(nx*ny), v(nx*ny), dt, rho, h, beta, tol
-    real(c_double), intent(out) :: p(nx*ny), uo(nx*ny), vo(nx*ny), resid
-    integer(c_int), intent(out) :: iters
+    real(c_double), intent(out) :: p(nx*ny), uo(nx*ny), vo(nx*ny), resid, defect
+    integer(c_int), intent(out) :: iters, nclosed
     integer(c_int), intent(out) :: ierr
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
@@ -869,8 +918,13 @@ contains
     vo = v
     iters = 0
     resid = 0.0_wp
-    call test_mac(mc, nx, ny, cell, fill, h, st)
+    defect = 0.0_wp
+    nclosed = 0
+    if (precond /= PRECOND_MIC0 .and. precond /= PRECOND_MULTIGRID) &
+      call st%set(CPDI_ERR_INPUT, 'precond must be 0 (mic0) or 1 (multigrid)')
+    if (st%ok()) call test_mac(mc, nx, ny, cell, fill, h, st)
     if (st%ok()) then
+      mc%precond = precond
       mc%u = u
       mc%v = v
       call mac_walls(mc)
@@ -878,6 +932,8 @@ contains
       call mac_solve(mc, tol, maxit, converged)
       iters = mc%iters
       resid = mc%resid
+      defect = mc%defect
+      nclosed = mc%nfloat
       if (.not. converged) then
         write (buf, '(a,es10.3,a,i0,a)') 'the pressure solve did not converge (relative residual ', mc%resid, &
           ' after ', mc%iters, ' CG iterations); raise maxit or tol'

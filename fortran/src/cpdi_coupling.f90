@@ -29,7 +29,7 @@ module cpdi_coupling
   !! Faces touching a wall or a rigid body's cell (CELL_SOLID) are not free: their velocities are
   !! the wall's, they receive no impulse.
   use cpdi_kinds, only: wp, ik
-  use cpdi_pressure, only: mac_t, surface_theta, mac_clear_system, mac_apply, CELL_FLUID, CELL_AIR, CELL_SOLID
+  use cpdi_pressure, only: mac_t, surface_theta, mac_clear_system, CELL_FLUID, CELL_AIR, CELL_SOLID
   implicit none
   private
 
@@ -38,9 +38,8 @@ module cpdi_coupling
   real(wp), parameter :: W_FULL = 0.9_wp       !! a face more solid than this is solid (w = 1): no water DOF of tiny mass
   real(wp), parameter :: PHI_MAX = 0.99_wp     !! cells more solid than this are the solid's inside (air)
   real(wp), parameter :: DIAG_MIN = 1.0e-6_wp  !! a water cell whose weights sum below this is decoupled (p = 0)
-  real(wp), parameter :: POCKET_TOL = 1.0e-12_wp  !! row sums below this (of the diagonal) in a whole region: closed
 
-  public :: cpl_fractions, cpl_classify, cpl_constraint, cpl_assemble, cpl_impulse, cpl_pockets
+  public :: cpl_fractions, cpl_classify, cpl_constraint, cpl_assemble, cpl_impulse
 
 contains
 
@@ -304,68 +303,4 @@ contains
       if (m > mtol) cterm = g/m
     end function cterm
   end subroutine cpl_impulse
-  subroutine cpl_pockets(mc, region, queue)
-    !! Water closed in by a solid: a region of water cells (connected through the system's couplings)
-    !! with no air face of water weight, and a solid boundary whose fluxes telescope, has the constant
-    !! as a null vector of its rows: a uniform pressure there pushes on nothing the constraint can
-    !! move (the solid's own dilatation is its elasticity's). Its right-hand side then has to sum to
-    !! zero, and the solid's motion into a pocket thinner than a cell generally does not: the system
-    !! is inconsistent and CG diverges (a Hencky block landing on the floor over a 2 x 2 cell film of
-    !! water did). In such a region the mean of b is removed, so its water's volume follows the
-    !! solid instead of stopping it; its pressure is then defined up to the region's constant.
-    !! Regions next to a free rigid body are regular: its low-rank term is in the row sums.
-    !! region, queue: integer scratch, one entry per cell; mc%s and mc%q are used as scratch too.
-    type(mac_t), intent(inout) :: mc
-    integer(ik), intent(inout) :: region(:), queue(:)
-    integer(ik) :: i, j, c, n1, head, tail, k, nb(4), a, nreg
-    real(wp) :: rowmax, dmax, bsum
-    logical :: linked
-    if (mc%nfluid == 0) return
-    n1 = mc%nn(1)
-    mc%s = 0.0_wp
-    where (mc%cell == CELL_FLUID) mc%s = 1.0_wp
-    call mac_apply(mc, mc%s, mc%q)   ! A 1: the row sums
-    region = 0
-    nreg = 0
-    do j = mc%lo(2), mc%hi(2)
-      do i = mc%lo(1), mc%hi(1)
-        c = i + (j - 1)*n1
-        if (mc%cell(c) /= CELL_FLUID .or. region(c) /= 0) cycle
-        nreg = nreg + 1
-        region(c) = nreg
-        queue(1) = c
-        head = 1
-        tail = 1
-        rowmax = 0.0_wp
-        dmax = 0.0_wp
-        bsum = 0.0_wp
-        do while (head <= tail)   ! breadth first over the couplings ai (x) and aj (y)
-          k = queue(head)
-          head = head + 1
-          rowmax = max(rowmax, abs(mc%q(k)))
-          dmax = max(dmax, mc%adiag(k))
-          bsum = bsum + mc%b(k)
-          nb = [k + 1, k - 1, k + n1, k - n1]
-          do a = 1, 4
-            if (mc%cell(nb(a)) /= CELL_FLUID .or. region(nb(a)) /= 0) cycle
-            select case (a)
-            case (1)
-              linked = mc%ai(k) /= 0.0_wp
-            case (2)
-              linked = mc%ai(k - 1) /= 0.0_wp
-            case (3)
-              linked = mc%aj(k) /= 0.0_wp
-            case default
-              linked = mc%aj(k - n1) /= 0.0_wp
-            end select
-            if (.not. linked) cycle
-            region(nb(a)) = nreg
-            tail = tail + 1
-            queue(tail) = nb(a)
-          end do
-        end do
-        if (rowmax <= POCKET_TOL*dmax) mc%b(queue(1:tail)) = mc%b(queue(1:tail)) - bsum/real(tail, wp)
-      end do
-    end do
-  end subroutine cpl_pockets
 end module cpdi_coupling

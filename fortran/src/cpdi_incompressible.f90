@@ -29,7 +29,7 @@ module cpdi_incompressible
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
                            mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
-  use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse, cpl_pockets
+  use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse
   implicit none
   private
 
@@ -76,7 +76,6 @@ module cpdi_incompressible
     real(wp), allocatable :: sfill(:)         !! batty: the solid's cell fill (spread like fillw)
     real(wp), allocatable :: iu(:), iv(:)     !! batty: the pressure's impulse on the solid faces
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
-    integer(ik), allocatable :: region(:), stack(:)  !! batty: water cell regions of the system (cpl_pockets)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
   end type incomp_t
 
@@ -171,12 +170,12 @@ contains
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
                                            ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
-                                           ic%sfill, ic%svol, ic%region, ic%stack)
+                                           ic%sfill, ic%svol)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
                   ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
                   ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), &
-                  ic%svol(g%nnodes), ic%region(size(ic%mc%fill)), ic%stack(size(ic%mc%fill)), stat=m)
+                  ic%svol(g%nnodes), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -555,7 +554,6 @@ contains
       if (batty) then
         call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
         call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
-        call cpl_pockets(ic%mc, ic%region, ic%stack)   ! water closed in by a solid
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
       end if
@@ -872,7 +870,6 @@ contains
       dtc = max(dt, ic%dt_corr)
       call cpl_assemble(ic%mc, dtc, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .false., ic%beta, &
                         ic%fillw, ic%sfill)
-      call cpl_pockets(ic%mc, ic%region, ic%stack)   ! water closed in by a solid held still
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
       call toc(timers, 8, t0)

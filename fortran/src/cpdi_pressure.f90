@@ -20,11 +20,23 @@ module cpdi_pressure
   !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again. It
   !!   is solved for on its own (cpdi_incompressible): its velocity moves the particles but is
   !!   not kept in their momentum, so it adds no force to the flow.
-  !! * Solve: conjugate gradients preconditioned by modified incomplete Cholesky, MIC(0)
-  !!   (Bridson 2015, ch. 5), from p = 0 (a step depends on the particles alone, so a restart
-  !!   from a checkpoint is exact); relative residual ||b - A p||_2 / ||b||_2 <= tol.
+  !! * Solve: conjugate gradients from p = 0 (a step depends on the particles alone, so a
+  !!   restart from a checkpoint is exact); relative residual ||b - A p||_2 / ||b||_2 <= tol.
+  !!   Preconditioned (precond) by modified incomplete Cholesky, MIC(0) (Bridson 2015, ch. 5;
+  !!   iterations grow like sqrt(cells)), or by one geometric multigrid V-cycle (cpdi_multigrid;
+  !!   iterations about constant in the grid size).
+  !! * Closed water (issue 38): a 4-connected water region whose rows of A sum to zero (no air
+  !!   neighbour: walls only) has the constant in A's null space, so its pressure is defined up to
+  !!   a constant and A p = b is solvable only if b sums to zero over it. The solve finds these
+  !!   regions, removes each one's mean from b (the removed part, relative to ||b||, is `defect`:
+  !!   round-off for a physical step, the unreachable part of a target such as a uniform volume
+  !!   correction otherwise), keeps the preconditioned residuals free of the constants, and
+  !!   fixes each region's constant so that the pressure, extrapolated linearly to the top faces of
+  !!   its highest row, is zero there on average: a tank filled to the lid and closed at zero gauge
+  !!   pressure, the level an open tank filled to the same height has at its surface.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_STATE
+  use cpdi_multigrid, only: mg_t, mg_alloc, mg_build, mg_apply
   implicit none
   private
 
@@ -36,6 +48,9 @@ module cpdi_pressure
   real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
+  real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
+  integer(ik), parameter, public :: PRECOND_MIC0 = 0       !! MIC(0): incomplete Cholesky
+  integer(ik), parameter, public :: PRECOND_MULTIGRID = 1  !! one geometric multigrid V-cycle
 
   type, public :: mac_t
     !! Staggered-grid fields over the padded node numbering (one entry per node index).
@@ -64,8 +79,19 @@ module cpdi_pressure
     real(wp), allocatable :: lrd(:, :)       !! per body: D's diagonal (3)
     integer(ik) :: iters = 0                 !! CG iterations of the last solve
     real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
+    integer(ik) :: precond = PRECOND_MIC0    !! the CG's preconditioner
+    type(mg_t) :: mg                         !! the multigrid levels (PRECOND_MULTIGRID)
+    ! Closed water regions (no air: the constant is in A's null space), found by each solve.
+    integer(ik) :: nfloat = 0                !! closed regions of the last solve
+    real(wp) :: defect = 0.0_wp              !! ||b's part in the null space||_2 / ||b||_2 of the last solve
+    integer(ik), allocatable :: rgn(:)       !! per cell: its closed region (0: none)
+    integer(ik), allocatable :: stk(:)       !! flood-fill stack
+    integer(ik), allocatable :: rlab(:)      !! per region found: its closed region or 0; then a closed region's top row
+    integer(ik), allocatable :: rcnt(:)      !! per closed region: cells
+    real(wp), allocatable :: rsum(:)         !! per closed region: a sum
   end type mac_t
 
+  public :: mac_precondition
   public :: mac_alloc, mac_clear_system, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
             mac_extrapolate, mac_ghost_pressure, mac_apply
 
@@ -81,14 +107,18 @@ contains
     n = nn(1)*nn(2)
     if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
-                                        mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy)
+                                        mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy, mc%rgn, mc%stk, mc%rlab, mc%rcnt, &
+                                        mc%rsum)
     allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
-              mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), stat=ierr)
+              mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), mc%rgn(n), mc%stk(n), mc%rlab(n), &
+              mc%rcnt(n), mc%rsum(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the pressure grid; use a larger cell size')
       return
     end if
+    call mg_alloc(mc%mg, hi(1) - lo(1) + 1, hi(2) - lo(2) + 1, st)
+    if (.not. st%ok()) return
     mc%nn = nn
     mc%lo = lo
     mc%hi = hi
@@ -120,6 +150,13 @@ contains
     mc%va = 1.0_wp
     mc%rvx = 0.0_wp
     mc%rvy = 0.0_wp
+    mc%rgn = 0
+    mc%stk = 0
+    mc%rlab = 0
+    mc%rcnt = 0
+    mc%rsum = 0.0_wp
+    mc%nfloat = 0
+    mc%defect = 0.0_wp
   end subroutine mac_alloc
 
   subroutine mac_mark_outside(mc, closed)
@@ -295,7 +332,8 @@ contains
         e = mc%adiag(c) - (mc%ai(c - 1)*mc%pre(c - 1))**2 - (mc%aj(c - n1)*mc%pre(c - n1))**2 &
             - MIC_TAU*(mc%ai(c - 1)*mc%aj(c - 1)*mc%pre(c - 1)**2 + mc%aj(c - n1)*mc%ai(c - n1)*mc%pre(c - n1)**2)
         if (e < MIC_SIGMA*mc%adiag(c)) e = mc%adiag(c)
-        mc%pre(c) = 1.0_wp/sqrt(e)
+        mc%pre(c) = 0.0_wp
+        if (e > 0.0_wp) mc%pre(c) = 1.0_wp/sqrt(e)   ! a water cell walled in on all sides: no row
       end do
     end do
   end subroutine mic0
@@ -344,8 +382,10 @@ contains
   end function fdot
 
   subroutine mac_solve(mc, tol, maxit, converged)
-    !! Solve A p = b by MIC(0)-preconditioned CG from p = 0. Sets
-    !! iters and resid; converged is false if maxit iterations did not reach tol.
+    !! Solve A p = b by preconditioned CG (mc%precond) from p = 0. Sets iters and resid;
+    !! converged is false if maxit iterations did not reach tol. Closed water regions (the
+    !! module's notes): b's null-space part is removed first (defect), the preconditioned
+    !! residuals are kept free of it, and each region's constant is fixed at the end.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: tol
     integer(ik), intent(in) :: maxit
@@ -354,9 +394,17 @@ contains
     integer(ik) :: it, j, c0, c1
     mc%iters = 0
     mc%resid = 0.0_wp
+    mc%defect = 0.0_wp
+    mc%nfloat = 0
     mc%p = 0.0_wp
     converged = .true.
     if (mc%nfluid == 0) return
+    call find_closed(mc)
+    if (mc%nfloat > 0) then
+      bnorm = sqrt(fdot(mc, mc%b, mc%b))
+      call remove_means(mc, mc%b, rnorm)
+      if (bnorm > 0.0_wp) mc%defect = rnorm/bnorm
+    end if
     bnorm = sqrt(fdot(mc, mc%b, mc%b))
     if (bnorm == 0.0_wp) then
       mc%p = 0.0_wp
@@ -371,8 +419,7 @@ contains
     rnorm = sqrt(fdot(mc, mc%r, mc%r))
     mc%resid = rnorm/bnorm
     if (mc%resid <= tol) return
-    call mic0(mc)
-    call mic0_apply(mc)
+    call mac_precondition(mc, .true.)
     mc%s = mc%z
     rz = fdot(mc, mc%r, mc%z)
     converged = .false.
@@ -385,6 +432,7 @@ contains
         mc%p(c0:c1) = mc%p(c0:c1) + alpha*mc%s(c0:c1)
         mc%r(c0:c1) = mc%r(c0:c1) - alpha*mc%q(c0:c1)
       end do
+      if (mc%nfloat > 0) call remove_means(mc, mc%r)
       mc%iters = it
       rnorm = sqrt(fdot(mc, mc%r, mc%r))
       mc%resid = rnorm/bnorm
@@ -393,7 +441,7 @@ contains
         exit
       end if
       if (.not. (mc%resid < huge(1.0_wp))) exit
-      call mic0_apply(mc)
+      call mac_precondition(mc, .false.)
       rzn = fdot(mc, mc%r, mc%z)
       do j = mc%lo(2), mc%hi(2)
         c0 = mc%lo(1) + (j - 1)*mc%nn(1)
@@ -402,7 +450,170 @@ contains
       end do
       rz = rzn
     end do
+    if (converged .and. mc%nfloat > 0) call fix_reference(mc)
   end subroutine mac_solve
+
+  subroutine mac_precondition(mc, setup)
+    !! z = M^-1 r on the water cells (0 elsewhere), M the preconditioner mc%precond, set up
+    !! from the assembled matrix first when setup is true; without its null-space part in
+    !! closed regions (as found by the last find_closed).
+    type(mac_t), intent(inout) :: mc
+    logical, intent(in) :: setup
+    integer(ik) :: base
+    if (mc%precond == PRECOND_MULTIGRID) then
+      base = mc%lo(1) - 1 + (mc%lo(2) - 2)*mc%nn(1)
+      if (setup) call mg_build(mc%mg, base, mc%nn(1), mc%cell, CELL_FLUID, CELL_AIR, mc%adiag, mc%ai, mc%aj)
+      call mg_apply(mc%mg, base, mc%nn(1), mc%r, mc%z)
+    else
+      if (setup) call mic0(mc)
+      call mic0_apply(mc)
+    end if
+    if (mc%nfloat > 0) call remove_means(mc, mc%z)
+  end subroutine mac_precondition
+
+  subroutine find_closed(mc)
+    !! Label the closed water regions (rgn, nfloat, rcnt): 4-connected through non-zero
+    !! couplings of A, with no row whose sum exceeds ANCHOR of its diagonal (no air or other
+    !! Dirichlet term) and no cell in a free rigid body's low-rank term (a uniform pressure on a
+    !! free body's boundary moves it, unless the region lies wholly inside the body: that case is
+    !! not found, and its solve fails with a message). Flood fill in cell order: the labels do
+    !! not depend on anything else. q holds the low-rank cells' mark (scratch before the solve).
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1, nreg, top, k, nb(4), a
+    real(wp) :: cpl(4), rs
+    logical :: anchored
+    n1 = mc%nn(1)
+    nreg = 0
+    mc%nfloat = 0
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        mc%rgn(i + (j - 1)*n1) = 0
+        mc%q(i + (j - 1)*n1) = 0.0_wp
+      end do
+    end do
+    do k = 1, mc%nlr
+      mc%q(mc%lrc(k)) = 1.0_wp
+    end do
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%cell(c) /= CELL_FLUID .or. mc%rgn(c) /= 0) cycle
+        nreg = nreg + 1
+        anchored = .false.
+        top = 1
+        mc%stk(1) = c
+        mc%rgn(c) = nreg
+        do while (top > 0)
+          k = mc%stk(top)
+          top = top - 1
+          nb = [k + 1, k - 1, k + n1, k - n1]
+          cpl = [mc%ai(k), mc%ai(k - 1), mc%aj(k), mc%aj(k - n1)]
+          rs = mc%adiag(k) + sum(cpl)
+          if (abs(rs) > ANCHOR*abs(mc%adiag(k)) .or. mc%q(k) /= 0.0_wp) anchored = .true.
+          do a = 1, 4
+            if (cpl(a) == 0.0_wp) cycle
+            if (mc%cell(nb(a)) /= CELL_FLUID .or. mc%rgn(nb(a)) /= 0) cycle
+            top = top + 1
+            mc%stk(top) = nb(a)
+            mc%rgn(nb(a)) = nreg
+          end do
+        end do
+        if (anchored) then
+          mc%rlab(nreg) = 0
+        else
+          mc%nfloat = mc%nfloat + 1
+          mc%rlab(nreg) = mc%nfloat
+        end if
+      end do
+    end do
+    if (mc%nfloat == 0) then
+      do j = mc%lo(2), mc%hi(2)
+        do i = mc%lo(1), mc%hi(1)
+          mc%rgn(i + (j - 1)*n1) = 0
+        end do
+      end do
+      return
+    end if
+    mc%rcnt(1:mc%nfloat) = 0
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%rgn(c) == 0) cycle
+        mc%rgn(c) = mc%rlab(mc%rgn(c))
+        if (mc%rgn(c) > 0) mc%rcnt(mc%rgn(c)) = mc%rcnt(mc%rgn(c)) + 1
+      end do
+    end do
+  end subroutine find_closed
+
+  subroutine remove_means(mc, x, removed)
+    !! x <- x minus its mean over each closed region (in cell order); removed: the 2-norm of
+    !! what was taken away.
+    type(mac_t), intent(inout) :: mc
+    real(wp), intent(inout) :: x(:)
+    real(wp), intent(out), optional :: removed
+    integer(ik) :: i, j, c, n1, f
+    n1 = mc%nn(1)
+    mc%rsum(1:mc%nfloat) = 0.0_wp
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%rgn(c) > 0) mc%rsum(mc%rgn(c)) = mc%rsum(mc%rgn(c)) + x(c)
+      end do
+    end do
+    do f = 1, mc%nfloat
+      mc%rsum(f) = mc%rsum(f)/real(mc%rcnt(f), wp)
+    end do
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%rgn(c) > 0) x(c) = x(c) - mc%rsum(mc%rgn(c))
+      end do
+    end do
+    if (present(removed)) then
+      removed = 0.0_wp
+      do f = 1, mc%nfloat
+        removed = removed + real(mc%rcnt(f), wp)*mc%rsum(f)**2
+      end do
+      removed = sqrt(removed)
+    end if
+  end subroutine remove_means
+
+  subroutine fix_reference(mc)
+    !! Each closed region's constant: the pressure extrapolated linearly to the top faces of the
+    !! region's highest row (from the cell below where it is in the region) averages zero.
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1, f
+    real(wp) :: pt
+    n1 = mc%nn(1)
+    mc%rlab(1:mc%nfloat) = 0
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        if (mc%rgn(c) > 0) mc%rlab(mc%rgn(c)) = j
+      end do
+    end do
+    mc%rsum(1:mc%nfloat) = 0.0_wp
+    mc%rcnt(1:mc%nfloat) = 0
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        f = mc%rgn(c)
+        if (f == 0) cycle
+        if (j /= mc%rlab(f)) cycle
+        pt = mc%p(c)
+        if (mc%rgn(c - n1) == f) pt = mc%p(c) + 0.5_wp*(mc%p(c) - mc%p(c - n1))
+        mc%rsum(f) = mc%rsum(f) + pt
+        mc%rcnt(f) = mc%rcnt(f) + 1
+      end do
+    end do
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        f = mc%rgn(c)
+        if (f > 0) mc%p(c) = mc%p(c) - mc%rsum(f)/real(mc%rcnt(f), wp)
+      end do
+    end do
+  end subroutine fix_reference
 
   subroutine mac_project(mc, dt, rho, still)
     !! u <- u - dt/rho grad p on every face next to water (ghost pressure across the

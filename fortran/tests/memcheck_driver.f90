@@ -9,7 +9,8 @@ program memcheck_driver
   implicit none
   integer(c_int) :: h, ierr, nsteps, n, i, j, k, nb, nw
   character(len=512) :: msg
-  real(c_double) :: t, dx
+  real(c_double) :: t, dx, tdef
+  integer(c_int) :: ncl
   real(c_double), allocatable :: x(:, :), v(:, :), m(:), vol(:), r(:, :), xo(:, :), vo(:, :), f(:, :), s(:, :), &
                                  volo(:), ro(:, :)
   integer(c_int), allocatable :: mat(:), body(:)
@@ -124,7 +125,10 @@ program memcheck_driver
                         [0.5_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
                          0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options incompressible')
   call cpdi_set_option(h, 'fluid', 1.0_c_double, ierr, msg); call expect_ok('fluid incompressible')
-  call cpdi_advance(h, 0.05_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible')
+  call cpdi_set_option(h, 'pressure_precond', 0.0_c_double, ierr, msg); call expect_ok('mic0 preconditioner')
+  call cpdi_advance(h, 0.025_c_double, 10, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible')
+  call cpdi_set_option(h, 'pressure_precond', 1.0_c_double, ierr, msg); call expect_ok('multigrid preconditioner')
+  call cpdi_advance(h, 0.05_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible, multigrid')
   allocate (fu(41, 20), fv(40, 21), cp(40, 20), cf(40, 20), ck(40, 20))
   call cpdi_face_velocity(h, 40, 20, fu, fv, ierr, msg); call expect_ok('face velocity')
   call cpdi_grid_pressure(h, 40, 20, cp, cf, ck, ierr, msg); call expect_ok('grid pressure')
@@ -133,11 +137,11 @@ program memcheck_driver
   ! caller has only these): a grid short both ways, or with no positive cell size, is an error
   call cpdi_poisson_project(2, 2, [(2_c_int, k = 1, 4)], [(0.0_c_double, k = 1, 4)], [(0.0_c_double, k = 1, 4)], &
                             [(0.0_c_double, k = 1, 4)], 0.01_c_double, 1000.0_c_double, 1.0_c_double, 0.0_c_double, &
-                            1.0e-12_c_double, 10, p4, u4, v4, nsteps, t, ierr, msg)
+                            1.0e-12_c_double, 10, 0, p4, u4, v4, nsteps, t, tdef, ncl, ierr, msg)
   call expect_error('test grid short both ways')
   call cpdi_poisson_project(2, 3, [(2_c_int, k = 1, 6)], [(0.0_c_double, k = 1, 6)], [(0.0_c_double, k = 1, 6)], &
                             [(0.0_c_double, k = 1, 6)], 0.01_c_double, 1000.0_c_double, 1.0_c_double, 0.0_c_double, &
-                            1.0e-12_c_double, 10, p6, u6, v6, nsteps, t, ierr, msg)
+                            1.0e-12_c_double, 10, 0, p6, u6, v6, nsteps, t, tdef, ncl, ierr, msg)
   call expect_error('test grid short in x')
   ! the elastic block alone with contact on: one body, one velocity field, the walls under the
   ! volume constraint (their volumes were once read out of bounds for a single field)
