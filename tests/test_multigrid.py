@@ -13,8 +13,18 @@ import pytest
 
 from harness import solver
 from harness.solver import CpdiError, _call
-from tests.test_incompressible import (AIR, PRECONDS, WALL, WATER, apply_op, flat, irregular_region, project,
-                                       surface_tank_problem, tank)
+from tests.test_incompressible import (
+    AIR,
+    PRECONDS,
+    WALL,
+    WATER,
+    apply_op,
+    flat,
+    irregular_region,
+    project,
+    surface_tank_problem,
+    tank,
+)
 
 
 def precond(cell, fill, r, kind="multigrid"):
