@@ -202,7 +202,8 @@ def test_multigrid_run_is_bitwise_independent_of_the_thread_count():
 def test_an_unknown_preconditioner_is_refused():
     cell = tank(6, 6)
     with pytest.raises(CpdiError, match="precond must be 0"):
-        _call("cpdi_poisson_precond", 6, 6, flat(cell, np.int32), flat(np.ones(cell.shape)), 2, flat(np.ones(cell.shape)))
+        _call("cpdi_poisson_precond", 6, 6, flat(cell, np.int32), flat(np.ones(cell.shape)), 2,
+              flat(np.ones(cell.shape)))
     sim = solver.Simulation()
     with pytest.raises(CpdiError, match="pressure_precond"):
         sim.set_options(fluid="incompressible", pressure_precond="amg")
