@@ -33,7 +33,8 @@ def test_every_committed_mark_names_a_mutant_of_the_current_sources():
     # says so at once: move the mark to the same mutation of the same statement
     # (tools/rekey_mutation_marks.py does it) and re-read its reason against the code around
     # it. Judged in a git checkout only: the mutation tool's scratch copies (git archive, no
-    # .git) hold a mutated source, whose own line would orphan its mark there and "kill" the mutant for no physical reason.
+    # .git) hold a mutated source, whose own line would orphan its mark there and "kill" the
+    # mutant for no physical reason.
     from pathlib import Path
 
     import pytest
