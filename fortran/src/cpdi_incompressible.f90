@@ -578,12 +578,12 @@ contains
     else if (ic%coupled) then
       call faces_to_solid(ic, nm, mtol, dvx, dvy)
     end if
-    where (ic%mc%uval /= 0)   ! FLIP increments of the faces the projection set
+    where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
       ic%mc%uo = ic%mc%u - ic%mc%uo
     elsewhere
       ic%mc%uo = 0.0_wp
     end where
-    where (ic%mc%vval /= 0)
+    where (ic%mc%vval == 1)
       ic%mc%vo = ic%mc%v - ic%mc%vo
     elsewhere
       ic%mc%vo = 0.0_wp

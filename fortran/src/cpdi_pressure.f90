@@ -43,8 +43,6 @@ module cpdi_pressure
   integer(ik), parameter, public :: CELL_AIR = 0
   integer(ik), parameter, public :: CELL_FLUID = 1
   integer(ik), parameter, public :: CELL_SOLID = 2
-  integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
-  integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
   real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
@@ -63,7 +61,7 @@ module cpdi_pressure
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
     real(wp), allocatable :: uc(:), vc(:)    !! volume-correction velocities (advection only)
-    integer(ik), allocatable :: uval(:), vval(:) !! FACE_WATER, FACE_WALL: set by the projection; 0: not set
+    integer(ik), allocatable :: uval(:), vval(:) !! 1: face set by the projection; 2, 3: extrapolated
     real(wp), allocatable :: p(:)            !! cell pressure [Pa]
     real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
     real(wp), allocatable :: b(:), adiag(:), ai(:), aj(:), pre(:), r(:), z(:), s(:), q(:)
@@ -620,7 +618,7 @@ contains
     !! surface); faces next to a wall cell get the wall's normal velocity (a rigid body's
     !! cells their body's), or zero with still = .true. (a correction field: its solve held
     !! every wall still, so a moving body's velocity is no part of it). Marks the faces it set
-    !! (uval, vval: FACE_WATER or FACE_WALL); the others are left for mac_extrapolate.
+    !! (uval, vval = 1); the others are left for mac_extrapolate.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho
     logical, intent(in), optional :: still
@@ -661,28 +659,26 @@ contains
       if (tl == CELL_SOLID .or. tr == CELL_SOLID) then
         if (tl /= tr) then   ! a wall face: the wall's (or rigid body's) normal velocity
           w = wall*merge(rv(cl), rv(cr), tl == CELL_SOLID)
-          val = FACE_WALL
+          val = 1
         end if
       else if (tl == CELL_FLUID .and. tr == CELL_FLUID) then
         w = w - sa*(mc%p(cr) - mc%p(cl))
-        val = FACE_WATER
+        val = 1
       else if (tl == CELL_FLUID) then
         w = w + sa*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
-        val = FACE_WATER
+        val = 1
       else if (tr == CELL_FLUID) then
         w = w - sa*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
-        val = FACE_WATER
+        val = 1
       end if
     end subroutine face
   end subroutine mac_project
 
   subroutine mac_extrapolate(mc, w, val, layers)
     !! Faces the projection did not set (val = 0: not next to water) take the mean of their
-    !! neighbours on the same lattice that water set (FACE_WATER), layer by layer, so particles at
-    !! the surface gather projected values; faces still unset after `layers` layers are zero.
-    !! Walls' faces (FACE_WALL) keep their normal velocity and are no source: an air face between
-    !! the water and a wall carries the water's velocity, not a mean with the wall's (Bridson 2015,
-    !! ch. 4). val is left as it was (one marking serves several fields).
+    !! set neighbours on the same lattice, layer by layer, so particles at the surface gather
+    !! projected values; faces still unset after `layers` layers are zero. val is left as
+    !! it was (one marking serves several fields).
     type(mac_t), intent(in) :: mc
     real(wp), intent(inout) :: w(:)
     integer(ik), intent(in) :: val(:)
