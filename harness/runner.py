@@ -34,7 +34,7 @@ from harness.cases import Case, CaseError
 from harness.output import SeriesWriter, SnapshotWriter, corners, write_json
 from harness.probes import ProbeSet
 from harness.seeding import ParticleSet, seed
-from harness.solver import CpdiError, Simulation, pressure
+from harness.solver import MODELS, CpdiError, Simulation, pressure
 
 SERIES_BASE = ["t", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y", "gravity_work",
                "body_force_work", "friction_work", "viscous_dissipation", "mass", "steps", "dt", "cg_iterations",
@@ -152,7 +152,7 @@ def check_feasible(case: Case, sim: Simulation) -> None:
                     "shorter t_end, or raise solver.max_estimated_steps to run it anyway")
 
 
-SOLID_MODELS = ("hencky", "neo_hookean", "rigid", "rigid_body")
+SOLID_MODELS = tuple(m for m in MODELS if m != "newtonian_fluid")   # every model but the water
 
 
 class WaterLoads:

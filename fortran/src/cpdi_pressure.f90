@@ -25,8 +25,8 @@ module cpdi_pressure
   !!   Preconditioned (precond) by modified incomplete Cholesky, MIC(0) (Bridson 2015, ch. 5;
   !!   iterations grow like sqrt(cells)), or by one geometric multigrid V-cycle (cpdi_multigrid;
   !!   iterations about constant in the grid size).
-  !! * Closed water (issue 38): a 4-connected water region whose rows of A sum to zero (no air
-  !!   neighbour: walls only) has the constant in A's null space, so its pressure is defined up to
+  !! * Closed water (issue 38): a water region (connected through A's couplings) whose rows sum to
+  !!   zero, with no free body's low-rank term, has the constant in A's null space: p defined up to
   !!   a constant and A p = b is solvable only if b sums to zero over it. The solve finds these
   !!   regions, removes each one's mean from b (the removed part, relative to ||b||, is `defect`:
   !!   round-off for a physical step, the unreachable part of a target such as a uniform volume

@@ -1,6 +1,6 @@
 """Pressure-solver benchmark: MIC(0)-CG against multigrid-CG on the Lobovsky dam break.
 
-``python -m harness.pressure_bench [--cells 0.01 0.005 0.0025] [--tstar 1.0] [--steps 20]``
+``.venv/bin/python tools/pressure_bench.py [--cells 0.01 0.005 0.0025] [--tstar 1.0] [--steps 20]``
 
 For each cell size the case (cases/dam_break_pressure.toml, incompressible, APIC) is stepped with
 the multigrid preconditioner to t* = ``--tstar`` (the collapsing column: a moving surface), its
@@ -16,12 +16,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from harness import cases, paths, runner
-from harness.solver import PRECONDS, _call
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))   # a developer tool: the repository's harness
+
+from harness import cases, paths, runner  # noqa: E402
+from harness.solver import PRECONDS, _call  # noqa: E402
 
 H, G = 0.3, 9.81
 
@@ -58,7 +62,7 @@ def measure(cell: float, tstar: float, steps: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m harness.pressure_bench", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="tools/pressure_bench.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--cells", type=float, nargs="+", default=[0.01, 0.005, 0.0025])
     ap.add_argument("--tstar", type=float, default=1.0)
     ap.add_argument("--steps", type=int, default=20)
