@@ -52,7 +52,8 @@ $(VENV)/.installed: pyproject.toml
 	@echo "bootstrap: installing pinned Python packages into $(VENV)"
 	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
 	@$(PY) -m pip install -q --disable-pip-version-check \
-	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['dependencies']))")
+	  $$($(PY) -c "import tomllib; p = tomllib.load(open('pyproject.toml','rb'))['project']; \
+	     print(' '.join(p['dependencies'] + p['optional-dependencies']['test'] + p['optional-dependencies']['dev']))")
 	@touch $@
 
 venv: $(VENV)/.installed
@@ -84,7 +85,7 @@ verify-quick: build
 	@$(PY) -m harness verify --quick
 
 bench: build
-	@$(PY) -m harness bench $(if $(BASE),--base $(BASE))
+	@$(PY) -m tools.bench $(if $(BASE),--base $(BASE))
 
 run: build
 	@$(PY) -m harness run $(CASE)
@@ -95,12 +96,12 @@ regen-gold: build
 mutate: build
 	@$(PY) -m pip install -q --disable-pip-version-check \
 	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
-	@$(PY) -m harness mutate $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME)) $(if $(IDS),--ids $(IDS)) $(if $(VERIFY),--verify)
+	@$(PY) -m tools.mutation $(if $(SAMPLE),--sample $(SAMPLE)) $(if $(RESUME),--resume $(RESUME)) $(if $(IDS),--ids $(IDS)) $(if $(VERIFY),--verify)
 
 mutate-harness: build
 	@$(PY) -m pip install -q --disable-pip-version-check \
 	  $$($(PY) -c "import tomllib; print(' '.join(tomllib.load(open('pyproject.toml','rb'))['project']['optional-dependencies']['mutation']))")
-	@$(PY) -c "from harness.mutation import python_target as p; raise SystemExit(p.main())"
+	@$(PY) -c "from tools.mutation import python_target as p; raise SystemExit(p.main())"
 
 memcheck: venv
 	@test -d $(DEBUG_BUILD)/fortran || rm -rf $(DEBUG_BUILD)

@@ -1,20 +1,8 @@
 """cpdi-verify harness: run, verify, validate and benchmark the Fortran CPDI solver.
 
-Importing the package sets two OpenMP defaults for the solver, before its extension (and
-with it libgomp, which reads the environment once, when it is loaded) can be imported.
-Neither overrides a setting the user made:
-
-* GOMP_SPINCOUNT=10000 (unless OMP_WAIT_POLICY or GOMP_SPINCOUNT is set): a thread that
-  waits at a barrier spins for about 0.1 ms, then sleeps. libgomp's default spins 300000
-  times (3-4 ms on the 2-core VM); when another process shares the cores, the spinning
-  thread holds a core the thread it waits for needs, and a 2-thread run was measured 17x
-  slower than 1 thread. Sleeping at once (passive) is safe under load but pays a wake-up
-  per barrier on an idle machine (32k CPDI, 2 threads: 0.45 s per 100 steps against 0.31
-  with the short spin). With the short spin a 2-thread step beside a busy process still
-  takes ~1.7x a 1-thread one, so the solver measures both and runs each step on the
-  faster team (cpdi_step.team_for_step). docs/notes/threads.md has the measurements.
-* OMP_NUM_THREADS = the cores this process may use (available_cores: the affinity mask
-  and a cgroup CPU quota), not the machine's total. solver.threads(n) overrides it.
+Importing the package changes nothing in the caller's environment. The solver's OpenMP
+defaults are applied where its extension is loaded (harness.solver, on first use):
+see openmp_defaults.
 """
 
 import math
@@ -48,12 +36,24 @@ def available_cores() -> int:
     return max(1, n)
 
 
-def _openmp_defaults() -> None:
-    env = os.environ
+def openmp_defaults(env: dict[str, str]) -> dict[str, str]:
+    """The OpenMP settings the solver's extension is loaded with, for the environment env;
+    neither overrides a setting the user made. libgomp reads them once, when it is loaded, so
+    harness.solver sets them for the import of the extension only and then restores the
+    caller's environment.
+
+    * GOMP_SPINCOUNT=10000 (unless OMP_WAIT_POLICY or GOMP_SPINCOUNT is set): a thread that
+      waits at a barrier spins for about 0.1 ms, then sleeps. libgomp's default spins 300000
+      times (milliseconds); when another process shares the cores, the spinning thread holds a
+      core the thread it waits for needs (a 2-thread run was measured 17x slower than 1 thread;
+      docs/notes/threads.md). The solver also measures both team sizes and runs each step on
+      the faster one (cpdi_step.team_for_step).
+    * OMP_NUM_THREADS = the cores this process may use (available_cores: the affinity mask and
+      a cgroup CPU quota), not the machine's total. solver.threads(n) overrides it.
+    """
+    out = {}
     if "OMP_WAIT_POLICY" not in env and "GOMP_SPINCOUNT" not in env:
-        env["GOMP_SPINCOUNT"] = "10000"
+        out["GOMP_SPINCOUNT"] = "10000"
     if not env.get("OMP_NUM_THREADS"):
-        env["OMP_NUM_THREADS"] = str(available_cores())
-
-
-_openmp_defaults()
+        out["OMP_NUM_THREADS"] = str(available_cores())
+    return out

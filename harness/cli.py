@@ -1,4 +1,7 @@
-"""Command line: ``cpdi`` (installed by pip) or ``python -m harness``: run, verify, report, sweep, gate, bench, mutate.
+"""Command line: ``cpdi`` (installed by pip) or ``python -m harness``: run, verify, report, sweep, gate.
+
+The developer tools have their own entry points in a checkout: ``python -m tools.bench`` (make bench)
+and ``python -m tools.mutation`` (make mutate).
 
 Errors print one line naming the problem and the fix, and exit non-zero:
 1 = a run or check failed, 2 = bad input (case file, arguments, checkpoint), 130 = interrupted
@@ -126,21 +129,6 @@ def cmd_sweep(args) -> int:
                       jobs=args.jobs, scheduler=args.scheduler)
 
 
-def cmd_bench(args) -> int:
-    from harness import bench
-
-    return bench.main(quick=args.quick, base=args.base)
-
-
-def cmd_mutate(args) -> int:
-    from harness.mutation import main as mutation
-
-    return mutation.main(sample=args.sample, jobs=args.jobs, seed=args.seed, full=not args.fast_only,
-                         resume=args.resume, only=args.only, report_only=args.report_only,
-                         ids=args.ids, fast_timeout=args.fast_timeout, full_timeout=args.full_timeout,
-                         verify_timeout=args.verify_timeout if args.verify else None)
-
-
 def _add_cluster_args(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--jobs", type=int, metavar="N",
                    help=f"run {what} on a local Dask cluster of N single-threaded worker processes (default: the "
@@ -197,36 +185,6 @@ def parser() -> argparse.ArgumentParser:
     sw.add_argument("--no-progress", action="store_true", help="no progress bars")
     _add_cluster_args(sw, "the runs")
     sw.set_defaults(func=cmd_sweep)
-    b = sub.add_parser("bench", help="performance benchmark")
-    b.add_argument("--quick", action="store_true")
-    b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "
-                   "32k CPDI throughput, interleaved")
-    b.set_defaults(func=cmd_bench)
-    mu = sub.add_parser("mutate", help="mutation testing of the Fortran core (make mutate)")
-    mu.add_argument("--sample", type=int, default=220, help="about this many mutants, stratified over the files")
-    mu.add_argument("--jobs", type=int, help="parallel scratch builds (default: the cores this process may use)")
-    mu.add_argument("--seed", type=int, default=20, help="sampling seed (same commit + seed = same mutants)")
-    mu.add_argument("--fast-only", action="store_true", help="no full make test for the fast tier's survivors")
-    mu.add_argument("--resume", metavar="DIR", help="continue an interrupted run in its report directory")
-    mu.add_argument("--only", nargs="+", metavar="FILE", help="mutate only these files (fortran/src/x.f90)")
-    mu.add_argument("--ids", nargs="+", metavar="ID",
-                    help="run exactly these mutants (ids as in a report's mutants.json, e.g. cpdi_fsi:126:3d364ae9); "
-                         "with --only FILE, only those files are scanned; the report goes to <date>-<sha>-ids/. "
-                         "With --resume DIR: only these of DIR's sample run (say, one survivor through --verify), "
-                         "and DIR's report still covers the whole sample")
-    mu.add_argument("--report-only", action="store_true", help="with --resume: summarise the journal, run nothing")
-    mu.add_argument("--fast-timeout", type=float, default=120.0, metavar="S",
-                    help="time limit per mutant for the fast tier, at least 3x the unmutated tree's (a hang counts "
-                         "as killed, and the report says so)")
-    mu.add_argument("--full-timeout", type=float, default=1200.0, metavar="S",
-                    help="time limit per mutant for the full make test (raise it on a loaded machine: a slow run "
-                         "must not count as a hang)")
-    mu.add_argument("--verify", action="store_true",
-                    help="also run make verify (about 45 min each on 2 cores) on every survivor of make test, "
-                         "those in a resumed journal included: the kill rate with make verify")
-    mu.add_argument("--verify-timeout", type=float, default=7200.0, metavar="S",
-                    help="time limit per mutant for make verify")
-    mu.set_defaults(func=cmd_mutate)
     return p
 
 

@@ -18,6 +18,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from harness import openmp_defaults
+
 UNKNOWN = "unknown"
 MISSING = "missing"
 
@@ -147,7 +149,9 @@ def collect(repo_root: Path, build_dir: Path | None = None) -> dict[str, Any]:
             "hostname": _safe(socket.gethostname),
             "cpu": cpu_model(),
             "nproc": nproc(),
-            "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+            # the user's setting, else the solver's default (harness.openmp_defaults)
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS")
+            or openmp_defaults(os.environ).get("OMP_NUM_THREADS", "unset"),
             "date": utc_now(),
         }
     )

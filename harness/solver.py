@@ -10,6 +10,7 @@ Fortran, and the transposes cost nothing.
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -49,12 +50,21 @@ class CpdiError(RuntimeError):
 
 
 def _load_extension():
+    """Import the extension with the OpenMP defaults in the environment (libgomp reads them as it
+    loads), then give the caller's environment back unchanged."""
+    from harness import openmp_defaults
+
+    added = openmp_defaults(os.environ)
+    os.environ.update(added)
     try:
         return importlib.import_module("harness._cpdi").cpdi_api
     except ImportError as exc:  # pragma: no cover - exercised only without a build
         raise ImportError(
             "the Fortran extension harness/_cpdi*.so is not built; run `make build` (or `make test`)"
         ) from exc
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
 
 
 _API = None

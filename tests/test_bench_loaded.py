@@ -1,5 +1,5 @@
 """The bench's loaded gate (2 threads beside busy processes never slower than GATE_LOAD x one
-thread) compares two fresh processes that step in turns (harness.bench_interleave.pair), so that a
+thread) compares two fresh processes that step in turns (tools.bench_interleave.pair), so that a
 slow spell of a shared machine falls on both runs alike: only one steps at a time, they alternate,
 the first to go alternates, both take the same steps, and a child that fails is reported with its
 own error. The fake children here follow the real protocol and log when they step."""
@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from harness import bench, bench_interleave
+from tools import bench, bench_interleave
 
 # A child that speaks bench_interleave's protocol: each step sleeps 2 ms; it reports the monotonic
 # times at which each of its warm-ups and turns began and ended (one clock for all processes).

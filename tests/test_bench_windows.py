@@ -1,7 +1,7 @@
 """The bench's 2-thread speed-up gate counts only windows in which a compute-bound control, taken
 before and after the timed runs, found two cores, and a cache-line round trip between them cost
 near the best the machine showed; it says INCONCLUSIVE, not PASS or FAIL, when too few did
-(harness.bench.speedup_windows, core_control and round_trip_control; no solver runs and no timed
+(tools.bench.speedup_windows, core_control and round_trip_control; no solver runs and no timed
 busy loops: they are stubbed, only the smoke tests start real, tiny loops and probes)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from harness import bench, bench_interleave
+from tools import bench, bench_interleave
 
 
 class _Fake:

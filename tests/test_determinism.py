@@ -15,7 +15,8 @@ import copy
 import numpy as np
 import pytest
 
-from harness import bench, cases, runner, solver
+from harness import cases, runner, solver
+from tools import bench
 
 
 def _dam_break(shape: str, projection: str) -> dict:

@@ -175,7 +175,8 @@ def test_multigrid_solve_is_bitwise_independent_of_the_thread_count(rng):
 def test_multigrid_run_is_bitwise_independent_of_the_thread_count():
     """A dam break stepped with the multigrid preconditioner on a grid above the threshold:
     the same particles at 1 and 2 threads."""
-    from harness import bench, cases, runner
+    from harness import cases, runner
+    from tools import bench
 
     d = bench.dam_break_case(16, "cpdi", "none")
     before = solver.threads()

@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from harness.mutation.execute import FAST_TESTS, FULL_LAST, full_tier, meson_failure, verify_failure
-from harness.mutation.summary import score
+from tools.mutation.execute import FAST_TESTS, FULL_LAST, full_tier, meson_failure, verify_failure
+from tools.mutation.summary import score
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -72,8 +72,8 @@ def test_kill_rates_by_make_test_and_with_make_verify():
 def test_a_resumed_verify_run_counts_the_survivors_it_verified():
     """A run resumed with --verify tests no new mutant but takes the journal's survivors of make
     test through make verify; the report's run line must say how many, not '0 mutants'."""
-    from harness.mutation.main import verified_now
-    from harness.mutation.summary import _run_lines
+    from tools.mutation.main import verified_now
+    from tools.mutation.summary import _run_lines
 
     old = {"a": {"id": "a", "tier": "full", "verdict": "survived"}, "b": {"id": "b", "tier": "fast"},
            "c": {"id": "c", "tier": "verify", "verdict": "killed"}}
@@ -87,8 +87,8 @@ def test_a_resumed_run_with_ids_runs_only_those_and_keeps_the_sample():
     """--resume DIR --ids X --verify takes only X of DIR's survivors through make verify (one
     survivor, not all of them at 45 min each); without ids, every unmarked survivor of make test
     and every mutant not yet journalled is pending, the new ones first."""
-    from harness.mutation.execute import pending
-    from harness.mutation.generate import Mutant
+    from tools.mutation.execute import pending
+    from tools.mutation.generate import Mutant
 
     ms = [Mutant(f"f:{i}:h", "fortran/src/f.f90", i, "a ==> b", "a", "b") for i in range(5)]
     done = {"f:0:h": {"verdict": "survived", "tier": "full"}, "f:1:h": {"verdict": "survived", "tier": "full"},
@@ -103,8 +103,8 @@ def test_a_resumed_run_with_ids_runs_only_those_and_keeps_the_sample():
 def test_a_resumed_run_keeps_the_first_runs_timing_in_the_report(tmp_path):
     """Resuming a report (say, the verify tier on its survivors) adds the new run's line; the
     first run's rev, timing and provenance stay in the report (they are the sample's numbers)."""
-    from harness.mutation.main import earlier_runs
-    from harness.mutation.summary import _run_lines
+    from tools.mutation.main import earlier_runs
+    from tools.mutation.summary import _run_lines
 
     first = {"rev": "a" * 40, "date": "2026-11-27", "provenance": {"git_sha": "a" * 40},
              "run": {"seconds": 2820, "jobs": 2, "tested": 224, "resumed_with": 0}}

@@ -1,4 +1,4 @@
-"""The equivalence marks of the mutation tool (harness/mutation/equivalent.toml) follow the code.
+"""The equivalence marks of the mutation tool (tools/mutation/equivalent.toml) follow the code.
 
 A mark names a mutant by file, line and a hash of the mutated line. When that line moves or
 changes, the mark names nothing, and the mutant it was meant for would be counted as a
@@ -7,7 +7,7 @@ survivor without anyone noticing: `make mutate` warns and the report lists such 
 
 from __future__ import annotations
 
-from harness.mutation import summary
+from tools.mutation import summary
 
 
 def test_a_mark_whose_line_moved_is_reported_and_others_are_not():
@@ -39,7 +39,7 @@ def test_every_committed_mark_names_a_mutant_of_the_current_sources():
 
     import pytest
 
-    from harness.mutation import generate
+    from tools.mutation import generate
 
     repo = Path(__file__).resolve().parent.parent
     if not (repo / ".git").exists():

@@ -1,4 +1,4 @@
-"""Move the equivalence marks of harness/mutation/equivalent.toml (and their rows in
+"""Move the equivalence marks of tools/mutation/equivalent.toml (and their rows in
 docs/notes/mutation_equivalents.md) to the lines their mutants are on now.
 
 A mark's id is file:line:hash, the hash that of the mutated line's text. An edit above a marked
@@ -21,9 +21,9 @@ sys.path.insert(0, str(REPO))
 
 import tomllib  # noqa: E402
 
-from harness.mutation import generate, summary  # noqa: E402
+from tools.mutation import generate, summary  # noqa: E402
 
-FILES = (REPO / "harness/mutation/equivalent.toml", REPO / "docs/notes/mutation_equivalents.md")
+FILES = (REPO / "tools/mutation/equivalent.toml", REPO / "docs/notes/mutation_equivalents.md")
 
 
 def main() -> int:

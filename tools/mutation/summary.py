@@ -81,9 +81,9 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
     wrong = [r for r in rows if r["id"] in eq and r["verdict"] in KILLED]
     if wrong:   # a test told them apart: the mark is wrong (they are run through the fast tier only)
         md += ["", f"**{len(wrong)} mutants marked equivalent were killed** (check their marks in "
-               "harness/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
+               "tools/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
     if meta.get("stale_marks"):
-        md += ["", f"**{len(meta['stale_marks'])} marks in harness/mutation/equivalent.toml name no mutant of "
+        md += ["", f"**{len(meta['stale_marks'])} marks in tools/mutation/equivalent.toml name no mutant of "
                "this revision** (their line moved or changed; re-check and update them): "
                + ", ".join(f"`{i}`" for i in meta["stale_marks"])]
     md += ["", f"## Survivors of make test ({len(surv)})", ""]

@@ -43,7 +43,7 @@ class Mutant:
 def _engine():
     try:
         from universalmutator import mutator
-    except ImportError as exc:  # make mutate installs it; a plain python -m harness mutate may not have it
+    except ImportError as exc:  # make mutate installs it; a plain python -m tools.mutation may not have it
         raise SystemExit("error: universalmutator is not installed; run `make mutate` (it installs the "
                          "pinned mutation-testing packages into .venv)") from exc
     return mutator

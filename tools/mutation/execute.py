@@ -17,8 +17,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-from harness.mutation.generate import Mutant
-from harness.mutation.summary import equivalent_ids
+from tools.mutation.generate import Mutant
+from tools.mutation.summary import equivalent_ids
 
 # The fast tier: unit-level tests of kernels, transfers, constitutive models, walls and the
 # incompressible step (each file runs in seconds, ~30 s in all). The full tier is what

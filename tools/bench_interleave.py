@@ -29,8 +29,9 @@ WARM = 10    # untimed steps of each process before the turns (first touch, team
 def serve(size: str, shape: str) -> None:
     """The child: build the bench's dam break, then obey stdin line by line: `warm N` and `step N`
     (advance N steps, the second timed) answer `ok`; `end` prints the totals as JSON and returns."""
-    from harness import bench, cases, runner, solver
+    from harness import cases, runner, solver
     from harness.seeding import seed
+    from tools import bench
 
     case = cases.from_dict(bench.dam_break_case(bench.SIZES[size], shape))
     sim, parts = runner.build(case, seed(case))
@@ -55,7 +56,7 @@ def serve(size: str, shape: str) -> None:
 
 
 def _child(size: str, shape: str, threads: int, repo: Path) -> list[str]:
-    return [sys.executable, "-c", f"from harness.bench_interleave import serve; serve({size!r}, {shape!r})"]
+    return [sys.executable, "-c", f"from tools.bench_interleave import serve; serve({size!r}, {shape!r})"]
 
 
 class _Proc:

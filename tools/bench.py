@@ -1,4 +1,4 @@
-"""``python -m harness bench``: dam-break throughput per interpolation, size and thread count.
+"""``python -m tools.bench``: dam-break throughput per interpolation, size and thread count.
 
 The case is the Martin & Moyce column (L wide, 2L high, tank 4L) with the real bulk modulus
 of water, MUSL, 2x2 particles per cell and the cell-wise volumetric projection on (the
@@ -124,7 +124,9 @@ def measure(size: str, shape: str, steps: int) -> dict:
 
 
 def _spawn(size: str, shape: str, threads: int, repo: Path = REPO) -> subprocess.Popen:
-    code = ("import json; from harness.bench import measure; "
+    # a base commit (--base) older than the move of the bench to tools/ has it in the harness package
+    code = ("import json\ntry:\n    from tools.bench import measure\nexcept ImportError:\n"
+            "    from harness.bench import measure\n"
             f"print(json.dumps(measure({size!r}, {shape!r}, {STEPS[size]})))")
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(repo))
     return subprocess.Popen([sys.executable, "-c", code], cwd=repo, env=env, stdout=subprocess.PIPE,
@@ -210,7 +212,7 @@ def speedup_windows(size: str, say, need: int = WINDOWS_VALID, most: int = WINDO
     1.70-1.91x at 32k on a machine that gave the 2-thread run 1.85-2.03x, so it measured memory
     as well as cores. The solver's own memory-bound scaling is what the gate judges; a control
     that shares that limit would excuse it."""
-    from harness import bench_interleave
+    from tools import bench_interleave
 
     steps = WINDOW_STEPS.get(size, STEPS[size])
     best = min(round_trip_control() for _ in range(3))
@@ -361,7 +363,7 @@ def loaded_rows(repeats: int, say) -> list[dict]:
     for seconds on end; measured at 31df99f), and a 1-thread run in one state with a 2-thread run in
     the other read 1.46 where both ran the same 1-thread steps (per-step times 6 ms against 9 ms;
     docs/notes/threads.md). In turns, a spell falls on both runs alike."""
-    from harness import bench_interleave
+    from tools import bench_interleave
 
     out = []
     for busy in (1, 2):
@@ -517,7 +519,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         (bar.write if bar else print)(msg)
     if bar:
         bar.close()
-    from harness import bench_water
+    from tools import bench_water
 
     say = print
     try:
@@ -557,3 +559,14 @@ def main(quick: bool = False, base: str | None = None) -> int:
     print("summary: " + (targets or "the issue's targets need the 32k and 128k rows (run without --quick)"))
     print(f"wrote {OUT / 'bench.json'}, {OUT / 'bench.png'}, {OUT / 'phases.png'} and {OUT / 'scaling.png'}")
     return 0
+
+
+if __name__ == "__main__":
+    import argparse
+
+    b = argparse.ArgumentParser(prog="python -m tools.bench", description="performance benchmark (make bench)")
+    b.add_argument("--quick", action="store_true")
+    b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "
+                   "32k CPDI throughput, interleaved")
+    args = b.parse_args()
+    sys.exit(main(quick=args.quick, base=args.base))

@@ -1,6 +1,6 @@
 """Mutation testing of the Fortran core: does the test suite catch a seeded bug?
 
-`make mutate` (``python -m harness mutate``) seeds one small, plausible bug at a time into
+`make mutate` (``python -m tools.mutation``) seeds one small, plausible bug at a time into
 ``fortran/src/`` and runs the tests against it:
 
 - ``generate``: the mutants. universalmutator's regexp engine with its ``fortran.rules`` and

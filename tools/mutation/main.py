@@ -1,4 +1,4 @@
-"""`python -m harness mutate`: generate, sample, run and report (see the package docstring)."""
+"""`python -m tools.mutation`: generate, sample, run and report (see the package docstring)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from harness import paths, provenance
-from harness.mutation import execute, generate, summary
+from tools.mutation import execute, generate, summary
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -51,7 +51,7 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
     stale = summary.stale_marks({m.id for ms in every.values() for m in ms}, files)
     if stale:
         meta["stale_marks"] = stale
-        print(f"warning: {len(stale)} mark(s) in harness/mutation/equivalent.toml name no mutant at {rev[:12]} "
+        print(f"warning: {len(stale)} mark(s) in tools/mutation/equivalent.toml name no mutant at {rev[:12]} "
               f"(a moved or edited line changes its id): {', '.join(stale)}; re-check and update them",
               file=sys.stderr)
     name = f"{meta['date']}-{rev[:12]}" + ("-ids" if ids else "")   # an id run never mixes into a sample's report
