@@ -55,6 +55,17 @@ def test_pip_install_then_cpdi_verify_quick(tmp_path: Path) -> None:
                 "_data/cases/water_column.toml", "_data/fflags.txt"):
         assert (pkg / rel).is_file(), rel
     assert len(list(pkg.glob("_cpdi*.so"))) == 1
+    # runtime only: no developer tool in the package, no test or developer dependency in the venv
+    assert not (pkg / "mutation").exists() and not list(pkg.glob("bench*.py"))
+    p = _run([str(venv / "bin" / "python"), "-c", "import importlib.util as u; "
+              "print([m for m in ('pytest', 'ruff', 'hypothesis', 'selenium', 'comby', 'mesonbuild', 'tools') "
+              "if u.find_spec(m)])"], work, 60)
+    assert p.stdout.strip() == "[]", p.stdout + p.stderr
+
+    case = str(Path(data_root) / "cases" / "water_column.toml")
+    p = _run([str(venv / "bin" / "cpdi"), "run", case, "--set", "solver.t_end=0.01", "--no-progress"],
+             work, 600)
+    assert p.returncode == 0 and "water_column: completed" in p.stdout, p.stdout[-2000:] + p.stderr[-2000:]
 
     p = _run([str(venv / "bin" / "cpdi"), "verify", "--quick", "--no-progress"], work, 3600)
     assert p.returncode == 0, p.stdout[-4000:] + p.stderr[-2000:]

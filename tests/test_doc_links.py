@@ -1,0 +1,45 @@
+"""The docs name only files that exist (issue 39, item 5): every relative Markdown link in the
+README, docs/ and cases/README.md, and every repository path written in backticks there
+(`docs/x.md`, `harness/y.py`, `tools/z.py`, ...), resolves in the checkout. A file that moves
+or is deleted without its references fails here."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+# a backticked path under one of the repository's top-level folders, ending in a file suffix
+PATH = re.compile(r"`((?:docs|harness|tools|tests|cases|fortran|reference|\.ci)/[\w./-]+\.\w+)`")
+
+INSTALLED = "harness/_data/"  # where pip puts cases/ and reference/ (docs/running.md): not in a checkout
+
+
+def _docs() -> list[Path]:
+    return [REPO / "README.md", REPO / "cases" / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+
+
+def _missing(doc: Path) -> list[str]:
+    text = doc.read_text()
+    bad = []
+    for target in LINK.findall(text):
+        if "://" in target or target.startswith("mailto:"):
+            continue
+        if not (doc.parent / target).exists():
+            bad.append(target)
+    if "notes" not in doc.parts:  # the notes record history: a path there may name a file as it was then
+        bad += [p for p in PATH.findall(text)
+                if "*" not in p and "<" not in p and not p.startswith(INSTALLED) and not (REPO / p).exists()]
+    return bad
+
+
+def test_every_link_and_path_in_the_docs_exists() -> None:
+    bad = {str(d.relative_to(REPO)): m for d in _docs() if (m := _missing(d))}
+    assert not bad, bad
+
+
+def test_a_missing_target_is_found(tmp_path: Path) -> None:
+    doc = tmp_path / "x.md"
+    doc.write_text("see [the design](design.md) and `harness/nowhere.py`\n")
+    assert _missing(doc) == ["design.md", "harness/nowhere.py"]
