@@ -63,7 +63,7 @@ def test_pip_install_then_cpdi_verify_quick(tmp_path: Path) -> None:
     assert p.stdout.strip() == "[]", p.stdout + p.stderr
 
     case = str(Path(data_root) / "cases" / "water_column.toml")
-    p = _run([str(venv / "bin" / "cpdi"), "run", case, "--set", "solver.t_end=0.01", "--no-progress"],
+    p = _run([str(venv / "bin" / "cpdi"), "run", case, "--set", "solver.t_end=0.1", "--no-progress"],
              work, 600)
     assert p.returncode == 0 and "water_column: completed" in p.stdout, p.stdout[-2000:] + p.stderr[-2000:]
 
