@@ -16,7 +16,7 @@ module cpdi_api
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
   use cpdi_motion, only: vtable_set
-  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside
+  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside, sim_release
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
@@ -129,6 +129,7 @@ contains
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
     if (st%ok()) then
+      call sim_release(reg(handle)%s)
       deallocate (reg(handle)%s)
       reg(handle)%used = .false.
     end if
@@ -692,9 +693,15 @@ contains
       call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
+    case ('solid_substeps')
+      if (.not. (value >= 0.0_wp .and. value <= 5.0_wp) .or. value /= aint(value)) then
+        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off) or 1-5 (subcycled)')
+      else
+        s%inc%substeps = nint(value, ik)
+      end if
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, coupling or pressure_precond')
+                  'cg_tolerance, cg_max_iterations, volume_correction, coupling, pressure_precond or solid_substeps')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)
