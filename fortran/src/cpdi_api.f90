@@ -694,8 +694,8 @@ contains
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case ('solid_substeps')
-      if (.not. (value >= 0.0_wp .and. value <= 5.0_wp) .or. value /= aint(value)) then
-        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off) or 1-5 (subcycled)')
+      if (.not. (value >= 0.0_wp .and. value <= 8.0_wp) .or. value /= aint(value)) then
+        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off) or 1-8 (subcycled)')
       else
         s%inc%substeps = nint(value, ik)
       end if

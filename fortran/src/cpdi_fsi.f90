@@ -154,7 +154,7 @@ contains
     batty = s%inc%coupling == COUPLING_BATTY
     vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
     forces = .not. associated(s%sub)   ! subcycled: the projection sees gravity's, not the stress's
-    if (s%inc%substeps >= 4) forces = .true.
+    if (s%inc%substeps > 0) forces = forces .or. btest(s%inc%substeps - 1, 2)
     associate (g => s%g, p => s%p)
       if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp

@@ -834,7 +834,7 @@ contains
       call batty_correction()
       return
     end if
-    if (ic%coupled .and. ic%subcycled .and. ic%substeps >= 2) then
+    if (ic%coupled .and. ic%subcycled .and. btest(ic%substeps - 1, 0)) then
       ! subcycled: the cell's total fill, water and solid, must stay <= 1 (water that ran into a
       ! solid's cells is pushed out again; the solids move in their own substeps, not with this)
       ic%fillw = ic%mc%fill

@@ -306,7 +306,7 @@ contains
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
-    real(wp) :: tend, t0, dts, a
+    real(wp) :: tend, t0, a
     integer(ik) :: k, code, ip
     character(len=600) :: buf
     call to_sub(s)
@@ -317,13 +317,12 @@ contains
       tend = s%t + dt
       k = 0
       do while (tend - u%t > 1.0e-12_wp*dt)
-        if (s%inc%substeps == 3 .or. s%inc%substeps == 5) then
-          ! the mixture's no-slip exchange, kept inside the step: a drag at the rate of the
-          ! substep toward the velocity the projection gave the particle, v0 + (t - t0) / dt
-          ! (v_proj - v0), added to gravity and the water's force
-          dts = min(u%opt%cfl*sim_stable_dt(u), tend - u%t)
+        if (btest(s%inc%substeps - 1, 1)) then
+          ! the mixture's no-slip exchange, kept inside the step: a drag at the rate 1 / dt
+          ! toward the velocity the projection gave the particle, v0 + (t - t0) / dt
+          ! (v_proj - v0), at the substep's start, added to gravity and the water's force
+          a = (u%t - t0)/dt
           do ip = 1, size(i)
-            a = (u%t + dts - t0)/dt
             u%p%bf(:, ip) = s%p%bf(:, i(ip)) + s%p%aw(:, i(ip)) + &
                             (s%p%v(:, i(ip)) + a*(s%vw(:, i(ip)) - s%p%v(:, i(ip))) - u%p%v(:, ip))/dt
           end do
