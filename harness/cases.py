@@ -150,8 +150,7 @@ SCHEMA: dict[str, Key] = {
         "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
                                         "solid's acoustic step) or auto (the solids' explicit steps subcycled inside "
                                         "the water's step; docs/fsi_incompressible.md)",
-                              choices=("off", "sub", "sub_tf", "sub_drag", "sub_tf_drag", "sub_st", "sub_tf_st", "sub_drag_st",
-                                       "sub_tf_drag_st"), default="off"),
+                              choices=("off", "auto"), default="off"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

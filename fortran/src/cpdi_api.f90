@@ -659,7 +659,9 @@ contains
     !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
     !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
     !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
-    !! (the CG's preconditioner: 0 mic0, 1 multigrid).
+    !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
+    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 auto, their explicit
+    !! steps subcycled inside the water's; docs/fsi_incompressible.md).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -694,11 +696,7 @@ contains
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case ('solid_substeps')
-      if (.not. (value >= 0.0_wp .and. value <= 8.0_wp) .or. value /= aint(value)) then
-        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off) or 1-8 (subcycled)')
-      else
-        s%inc%substeps = nint(value, ik)
-      end if
+      call set_flag(s%inc%substeps, 'solid_substeps must be 0 (off) or 1 (auto)')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
                   'cg_tolerance, cg_max_iterations, volume_correction, coupling, pressure_precond or solid_substeps')

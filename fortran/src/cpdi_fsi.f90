@@ -150,11 +150,9 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig, batty, vwalls, forces
+    logical :: rig, batty, vwalls
     batty = s%inc%coupling == COUPLING_BATTY
     vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
-    forces = .not. associated(s%sub)   ! subcycled: the projection sees gravity's, not the stress's
-    if (s%inc%substeps > 0) forces = forces .or. btest(s%inc%substeps - 1, 2)
     associate (g => s%g, p => s%p)
       if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
@@ -172,7 +170,6 @@ contains
         mp = p%m(ip)
         vol = p%vol(ip)
         sig = p%sig(:, ip)
-        if (.not. forces) sig = 0.0_wp
         b = mp*(s%opt%gravity + p%bf(:, ip))
         rig = s%rigid(p%mat(ip))
         do a = 1, shape_count(s%sh, ip)
@@ -284,9 +281,10 @@ contains
           fs = fs + p%m(ip)*dp/dt
           s%ld%wl(:, ip) = [p%m(ip)*dp/dt, 0.0_wp]   ! the water's load (cpdi_loads), at the particle
           if (sub) then
-            ! subcycled: the projection ran on the solid's velocity after gravity alone
-            ! (solid_p2g); its change dp over dt is the water's force on the particle through
-            ! the step, the load of the substeps that follow (cpdi_step); vw the velocity it gave
+            ! subcycled: the projection ran on the solid's velocity after gravity and its stress
+            ! at the step's start (solid_p2g); its change dp over dt is the water's force on the
+            ! particle through the step, the load of the substeps that follow, which redo the
+            ! stress's part themselves (cpdi_step subcycle_solids); vw the velocity it gave
             p%aw(:, ip) = dp/dt
             s%vw(:, ip) = p%v(:, ip) + dv
             cycle

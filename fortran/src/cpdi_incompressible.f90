@@ -78,7 +78,7 @@ module cpdi_incompressible
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
     ! Deformable solids subcycled inside the water's step (cpdi_step subcycle_solids, cpdi_fsi)
-    integer(ik) :: substeps = 0               !! option solid_substeps (0 off: the solids' acoustic step)
+    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
@@ -834,7 +834,7 @@ contains
       call batty_correction()
       return
     end if
-    if (ic%coupled .and. ic%subcycled .and. btest(ic%substeps - 1, 0)) then
+    if (ic%coupled .and. ic%subcycled) then
       ! subcycled: the cell's total fill, water and solid, must stay <= 1 (water that ran into a
       ! solid's cells is pushed out again; the solids move in their own substeps, not with this)
       ic%fillw = ic%mc%fill

@@ -317,16 +317,14 @@ contains
       tend = s%t + dt
       k = 0
       do while (tend - u%t > 1.0e-12_wp*dt)
-        if (btest(s%inc%substeps - 1, 1)) then
-          ! the mixture's no-slip exchange, kept inside the step: a drag at the rate 1 / dt
-          ! toward the velocity the projection gave the particle, v0 + (t - t0) / dt
-          ! (v_proj - v0), at the substep's start, added to gravity and the water's force
-          a = (u%t - t0)/dt
-          do ip = 1, size(i)
-            u%p%bf(:, ip) = s%p%bf(:, i(ip)) + s%p%aw(:, i(ip)) + &
-                            (s%p%v(:, i(ip)) + a*(s%vw(:, i(ip)) - s%p%v(:, i(ip))) - u%p%v(:, ip))/dt
-          end do
-        end if
+        ! the mixture's no-slip exchange, kept inside the step: a drag at the rate 1 / dt toward
+        ! the path the projection gave the particle, v0 + (t - t0) / dt (v_proj - v0), taken at
+        ! the substep's start, added to gravity and the water's force (a free fall is exact)
+        a = (u%t - t0)/dt
+        do ip = 1, size(i)
+          u%p%bf(:, ip) = s%p%bf(:, i(ip)) + s%p%aw(:, i(ip)) + &
+                          (s%p%v(:, i(ip)) + a*(s%vw(:, i(ip)) - s%p%v(:, i(ip))) - u%p%v(:, ip))/dt
+        end do
         call sim_step(u, tend - u%t, st)
         if (.not. st%ok()) then   ! the substep's message, told as this water step's
           code = st%code
