@@ -112,7 +112,6 @@ module cpdi_sim
     type(sim_t), pointer :: sub => null()     !! the solids' own simulation (null: none)
     integer(ik), allocatable :: isub(:)       !! per particle of sub: its index here
     real(wp), allocatable :: xw(:, :)         !! sub's positions at the start of the water step (2, n of sub)
-    real(wp), allocatable :: vw(:, :)         !! per particle: the projected velocity the substeps drag toward (2, n)
   end type sim_t
 
   public :: tic, toc, all_ok, all_int, tic_master, toc_master

@@ -224,8 +224,7 @@ contains
     n = count(keep)
     if (n == 0) return
     allocate (s%sub)
-    allocate (s%isub(n), s%xw(2, n), s%vw(2, s%p%n))
-    s%vw = 0.0_wp
+    allocate (s%isub(n), s%xw(2, n))
     k = 0
     do ip = 1, s%p%n
       if (.not. keep(ip)) cycle
@@ -278,7 +277,6 @@ contains
     s%sub => null()
     if (allocated(s%isub)) deallocate (s%isub)
     if (allocated(s%xw)) deallocate (s%xw)
-    if (allocated(s%vw)) deallocate (s%vw)
   end subroutine sim_release
 
   subroutine to_sub(s)
@@ -306,25 +304,16 @@ contains
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt
     type(status_t), intent(inout) :: st
-    real(wp) :: tend, t0, a
-    integer(ik) :: k, code, ip
+    real(wp) :: tend
+    integer(ik) :: k, code
     character(len=600) :: buf
     call to_sub(s)
     associate (u => s%sub, i => s%isub)
       s%xw = u%p%x
       u%t = s%t
-      t0 = s%t
       tend = s%t + dt
       k = 0
       do while (tend - u%t > 1.0e-12_wp*dt)
-        ! the mixture's no-slip exchange, kept inside the step: a drag at the rate 1 / dt toward
-        ! the path the projection gave the particle, v0 + (t - t0) / dt (v_proj - v0), taken at
-        ! the substep's start, added to gravity and the water's force (a free fall is exact)
-        a = (u%t - t0)/dt
-        do ip = 1, size(i)
-          u%p%bf(:, ip) = s%p%bf(:, i(ip)) + s%p%aw(:, i(ip)) + &
-                          (s%p%v(:, i(ip)) + a*(s%vw(:, i(ip)) - s%p%v(:, i(ip))) - u%p%v(:, ip))/dt
-        end do
         call sim_step(u, tend - u%t, st)
         if (.not. st%ok()) then   ! the substep's message, told as this water step's
           code = st%code
