@@ -150,15 +150,9 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig, batty, vwalls, dev
+    logical :: rig, batty, vwalls
     batty = s%inc%coupling == COUPLING_BATTY
     vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
-    ! subcycled, coupling mixture: the predictor carries the solid's deviatoric stress at t^n (the
-    ! shear that keeps its shape; without it the projection treats the solid as a liquid, which
-    ! slumps at the waterline and drives a jet). Its mean stress is left out: the projection holds
-    ! the mixture's volume itself, and a lagged volumetric stress cancelled by the water's force
-    ! (p%aw) fed back on the solid's pressure waves (docs/notes/fsi_subcycling.md).
-    dev = associated(s%sub) .and. .not. batty
     associate (g => s%g, p => s%p)
       if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
@@ -176,7 +170,6 @@ contains
         mp = p%m(ip)
         vol = p%vol(ip)
         sig = p%sig(:, ip)
-        if (dev) sig(1:2) = sig(1:2) - 0.5_wp*(sig(1) + sig(2))   ! subcycled: the deviatoric part
         b = mp*(s%opt%gravity + p%bf(:, ip))
         rig = s%rigid(p%mat(ip))
         do a = 1, shape_count(s%sh, ip)
@@ -288,10 +281,11 @@ contains
           fs = fs + p%m(ip)*dp/dt
           s%ld%wl(:, ip) = [p%m(ip)*dp/dt, 0.0_wp]   ! the water's load (cpdi_loads), at the particle
           if (sub) then
-            ! subcycled: the projection ran on the solid's velocity after gravity and its
-            ! deviatoric stress at the step's start (solid_p2g); its change dp over dt is the
-            ! water's force on the particle through the step, the load of the substeps that
-            ! follow, which redo the stress themselves (cpdi_step subcycle_solids)
+            ! subcycled: the projection ran on the solid's velocity after gravity and its stress
+            ! at the step's start (solid_p2g: without the stress the projection treats the solid
+            ! as a liquid, which slumps at the waterline and drives a jet there); its change dp
+            ! over dt is the water's force on the particle through the step, the load of the
+            ! substeps that follow, which redo the stress themselves (cpdi_step subcycle_solids)
             p%aw(:, ip) = dp/dt
             cycle
           end if
