@@ -200,6 +200,7 @@ contains
     if (s%inc%visc > 0.0_wp) s%visc_dt = 0.25_wp*s%inc%rho*s%g%h**2/s%inc%visc
     if (s%inc%coupled) then   ! solids coupled to the water (cpdi_fsi), subcycled if chosen
       call prepare_solids(s, st)
+      if (.not. st%ok()) call sim_release(s)   ! no half-built substeps' simulation is stepped
       if (st%ok()) call fsi_prepare(s, st)
     end if
   end subroutine prepare_incompressible
