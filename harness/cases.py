@@ -147,6 +147,10 @@ SCHEMA: dict[str, Key] = {
                                           "Cholesky; iterations grow like sqrt(cells)) or multigrid (a geometric "
                                           "multigrid V-cycle; iterations about constant)",
                                 choices=("mic0", "multigrid"), default="mic0"),
+        "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
+                                        "solid's acoustic step) or auto (the solids' explicit steps subcycled inside "
+                                        "the water's step; docs/fsi_incompressible.md)",
+                              choices=("off", "auto"), default="off"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

@@ -120,7 +120,8 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
                     projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
                     transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
                     cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
-                    coupling=s["coupling"], pressure_precond=s["pressure_precond"])
+                    coupling=s["coupling"], pressure_precond=s["pressure_precond"],
+                    solid_substeps=s["solid_substeps"])
     return sim, parts
 
 

@@ -45,6 +45,25 @@ def _stretched() -> dict:
     return d
 
 
+def _subcycled() -> dict:
+    """A Hencky block dropped into incompressible water, its explicit steps subcycled inside the
+    water's step (solid_substeps; cpdi_step subcycle_solids): the solid's substeps run the
+    explicit stages of the weakly compressible step, with the same threads."""
+    return {
+        "case": {"name": "subcycled_block", "requirement": "determinism"},
+        "grid": {"size": [1.0, 1.0], "cell": 0.05,
+                 "walls": {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"}},
+        "solver": {"fluid": "incompressible", "shape": "cpdi", "update": "usl", "cfl": 0.5, "t_end": 10.0,
+                   "gravity": [0.0, -9.81], "flip": 0.99, "coupling": "mixture", "solid_substeps": "auto"},
+        "materials": [{"name": "water", "model": "newtonian_fluid", "density": 1000.0, "viscosity": 1e-3},
+                      {"name": "block", "model": "hencky", "density": 1500.0, "youngs_modulus": 1e6,
+                       "poisson_ratio": 0.3}],
+        "bodies": [{"material": "water", "geometry": {"type": "rectangle", "min": [0.0, 0.0], "max": [1.0, 0.4]}},
+                   {"material": "block", "velocity": [0.3, -1.0],
+                    "geometry": {"type": "rectangle", "min": [0.3, 0.5], "max": [0.6, 0.65]}}],
+    }
+
+
 CASES = {
     "cpdi-cell": _dam_break("cpdi", "cell"),
     "cpdi-nodal": _dam_break("cpdi", "nodal"),
@@ -52,6 +71,7 @@ CASES = {
     "mpm-none": _dam_break("mpm", "none"),
     "cpdi-contact": _with_block(),
     "cpdi-pool": _stretched(),
+    "fsi-subcycled": _subcycled(),
 }
 
 

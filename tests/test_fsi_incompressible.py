@@ -22,7 +22,8 @@ from harness.solver import FULL_STATE_ROWS, CpdiError, Simulation
 H_CELL, WIDTH, DEPTH, RHO, G = 0.05, 1.0, 0.5, 1000.0, 9.81
 
 
-def tank_with_block(rho_s, block, *, rigid_velocity=None, E=1.0e6, h=H_CELL, coupling="batty", depth=DEPTH):
+def tank_with_block(rho_s, block, *, rigid_velocity=None, E=1.0e6, h=H_CELL, coupling="batty", depth=DEPTH,
+                    solid_substeps="off"):
     """Water depth deep in a WIDTH-wide tank 1 m high (slip walls, open top), a block ((x0, y0), (x1, y1))
     of Hencky material of density rho_s (or rigid, moving with rigid_velocity) replacing the
     water it covers. Returns the prepared simulation and the number of water particles."""
@@ -51,7 +52,8 @@ def tank_with_block(rho_s, block, *, rigid_velocity=None, E=1.0e6, h=H_CELL, cou
     sim.set_particles(x, v, np.where(mat == 0, RHO, rho_s) * vol, vol, np.tile([d / 2, 0.0, 0.0, d / 2], (n, 1)),
                       mat)
     sim.set_bodies(mat)
-    sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible", cfl=0.5, flip=0.99, coupling=coupling)
+    sim.set_options(shape="cpdi", gravity=(0.0, -G), fluid="incompressible", cfl=0.5, flip=0.99, coupling=coupling,
+                    solid_substeps=solid_substeps)
     return sim, nw
 
 
@@ -371,6 +373,24 @@ def test_mixture_submerged_solid_at_rest_feels_exactly_the_buoyancy():
     assert occupied.sum() == 20 * 10
     exact = np.tile(hydrostatic_cells(), (20, 1))
     np.testing.assert_allclose(grid["pressure"][occupied], exact[occupied], rtol=1e-6)
+
+
+def test_subcycled_neutral_block_at_rest_feels_exactly_the_buoyancy_at_the_waters_pace():
+    # solid_substeps = "auto": the Hencky block's explicit steps run inside the water's step
+    # (cpdi_step subcycle_solids). A neutrally buoyant block at rest in resting water stays at
+    # rest with the water's force rho_w g V on it, as with the acoustic step, and the coupled
+    # step is the water's (its advective limit, cfl h / sqrt(g h) = 0.036 s here), not the
+    # solid's (cfl h / c = 7e-4 s for E = 1 MPa).
+    block = ((0.4, 0.1), (0.6, 0.3))
+    buoyancy = RHO * G * 0.2 * 0.2
+    sim, nw = tank_with_block(RHO, block, coupling="mixture", solid_substeps="auto")
+    steps, t = sim.advance(0.5, land=False)
+    f, st = sim.solid_force(), sim.state()
+    sim.close()
+    c = np.sqrt(1.0e6 * 0.7 / (1.3 * 0.4) / RHO)   # P-wave speed, nu = 0.3
+    assert t / steps >= 10 * 0.5 * H_CELL / c
+    assert abs(f[1] - buoyancy) <= 1e-6 * buoyancy and abs(f[0]) <= 1e-6 * buoyancy
+    assert np.abs(st["v"]).max() <= 1e-6 * G * t / steps
 
 
 def test_batty_neutral_block_released_unstressed_feels_the_buoyancy_on_average():

@@ -16,7 +16,7 @@ module cpdi_api
   use cpdi_projection, only: projection_alloc, project_scalar
   use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
   use cpdi_motion, only: vtable_set
-  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside
+  use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside, sim_release
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
@@ -129,6 +129,7 @@ contains
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
     if (st%ok()) then
+      call sim_release(reg(handle)%s)
       deallocate (reg(handle)%s)
       reg(handle)%used = .false.
     end if
@@ -658,7 +659,9 @@ contains
     !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
     !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
     !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
-    !! (the CG's preconditioner: 0 mic0, 1 multigrid).
+    !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
+    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 auto, their explicit
+    !! steps subcycled inside the water's; docs/fsi_incompressible.md).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -692,9 +695,11 @@ contains
       call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
+    case ('solid_substeps')
+      call set_flag(s%inc%substeps, 'solid_substeps must be 0 (off) or 1 (auto)')
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, coupling or pressure_precond')
+                  'cg_tolerance, cg_max_iterations, volume_correction, coupling, pressure_precond or solid_substeps')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)

@@ -30,7 +30,7 @@ module cpdi_fsi
   implicit none
   private
 
-  public :: fsi_prepare, fsi_step
+  public :: fsi_prepare, fsi_step, fsi_finish
 
 contains
 
@@ -108,10 +108,40 @@ contains
       s%smax = max(s%smax, sqrt(2.0_wp)*vb + sqrt(norm2(s%opt%gravity)*s%g%h))
     end if
     s%dt_last = dt
+    if (associated(s%sub)) return   ! the solids' substeps follow (cpdi_step), then fsi_finish
     call solid_stress(s, cs, st)
     if (.not. st%ok()) return
     s%smax = max(s%smax, cs)
   end subroutine fsi_step
+
+  subroutine fsi_finish(s, dt, st)
+    !! After the solids' substeps of a subcycled step: their kinetic energy, momentum and work of
+    !! gravity over the step (diag 4, 6-8, from their positions at its start), strain energy (5),
+    !! and their speed in the next step's limit.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    type(status_t), intent(inout) :: st
+    integer(ik) :: k, ip
+    real(wp) :: cs, ke, mom(2), wg
+    ke = 0.0_wp
+    mom = 0.0_wp
+    wg = 0.0_wp
+    associate (p => s%p)
+      do k = 1, size(s%isub)
+        ip = s%isub(k)
+        ke = ke + 0.5_wp*p%m(ip)*(p%v(1, ip)**2 + p%v(2, ip)**2)
+        mom = mom + p%m(ip)*p%v(:, ip)
+        wg = wg + p%m(ip)*dot_product(s%opt%gravity, p%x(:, ip) - s%xw(:, k))
+      end do
+    end associate
+    s%diag(4) = s%diag(4) + ke
+    s%diag(6:7) = s%diag(6:7) + mom
+    s%diag(8) = s%diag(8) + wg
+    call solid_stress(s, cs, st)
+    if (.not. st%ok()) return
+    s%smax = max(s%smax, cs)
+    s%dt_last = dt
+  end subroutine fsi_finish
 
   subroutine solid_p2g(s, dt)
     !! Nodal mass, velocity at t^n (px, py) and after the solids' forces (vx, vy): solid and
@@ -120,10 +150,11 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig, batty
+    logical :: rig, batty, vwalls
     batty = s%inc%coupling == COUPLING_BATTY
+    vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
     associate (g => s%g, p => s%p)
-      if (batty) s%inc%svol = 0.0_wp
+      if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
       g%px = 0.0_wp
       g%py = 0.0_wp
@@ -148,7 +179,7 @@ contains
           g%py(k, 1) = g%py(k, 1) + wk*mp*p%v(2, ip)
           g%fx(k, 1) = g%fx(k, 1) - vol*(sig(1)*gxk + sig(3)*gyk) + wk*b(1)
           g%fy(k, 1) = g%fy(k, 1) - vol*(sig(3)*gxk + sig(2)*gyk) + wk*b(2)
-          if (batty) s%inc%svol(k) = s%inc%svol(k) + wk*vol
+          if (vwalls) s%inc%svol(k) = s%inc%svol(k) + wk*vol
           if (rig) then
             g%mr(k, 1) = g%mr(k, 1) + wk*mp
             g%prx(k, 1) = g%prx(k, 1) + wk*mp*p%v(1, ip)
@@ -172,7 +203,7 @@ contains
         call impose_rigid(g, g%px, g%py)
         call impose_rigid(g, g%vx, g%vy)
       end if
-      if (batty) then
+      if (vwalls) then
         ! the walls under the solid's volume constraint, as with contact: a solid reaching a wall
         ! node's support is held only once it fills it (otherwise a sinking block is stopped, and
         ! bounced elastically, a cell above the floor)
@@ -195,10 +226,11 @@ contains
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, a, k, nclamp
     real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), dp(2), fs(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
-    logical :: closed(4), batty
+    logical :: closed(4), batty, sub
     character(len=300) :: buf
     fl = s%opt%flip
     batty = s%inc%coupling == COUPLING_BATTY
+    sub = associated(s%sub)
     xmin = s%g%origin
     xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
     closed = s%g%walls /= WALL_OPEN
@@ -248,6 +280,15 @@ contains
           dv = dv + dp
           fs = fs + p%m(ip)*dp/dt
           s%ld%wl(:, ip) = [p%m(ip)*dp/dt, 0.0_wp]   ! the water's load (cpdi_loads), at the particle
+          if (sub) then
+            ! subcycled: the projection ran on the solid's velocity after gravity and its stress
+            ! at the step's start (solid_p2g: without the stress the projection treats the solid
+            ! as a liquid, which slumps at the waterline and drives a jet there); its change dp
+            ! over dt is the water's force on the particle through the step, the load of the
+            ! substeps that follow, which redo the stress themselves (cpdi_step subcycle_solids)
+            p%aw(:, ip) = dp/dt
+            cycle
+          end if
           p%v(:, ip) = fl*(p%v(:, ip) + dv) + (1.0_wp - fl)*vn
           p%x(:, ip) = xo + dt*vn
           call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
@@ -281,14 +322,17 @@ contains
 
   subroutine solid_stress(s, cs, st)
     !! Stress and strain energy (diag 5) of the solid particles; cs: their largest signal
-    !! speed c + |v| (the explicit solid's step limit).
+    !! speed c + |v| (the explicit solid's step limit), or, with the solids subcycled (s%sub),
+    !! sqrt(2) |v|_max + sqrt(|g| h), the water's own measure: the water step only has to keep
+    !! the solids within a cell; their substeps keep to their speed of sound (sub%smax).
     type(sim_t), intent(inout) :: s
     real(wp), intent(out) :: cs
     type(status_t), intent(inout) :: st
     integer(ik) :: ip
-    real(wp) :: se, c
+    real(wp) :: se, c, ca
     character(len=300) :: buf
     cs = 0.0_wp
+    ca = 0.0_wp
     se = 0.0_wp
     associate (p => s%p)
       do ip = 1, p%n
@@ -297,6 +341,10 @@ contains
         p%psi(ip) = p%psi(ip)*p%vol0(ip)
         se = se + p%psi(ip)
         c = sqrt(s%mats(p%mat(ip))%pmod*p%vol(ip)/p%m(ip)) + norm2(p%v(:, ip))
+        if (associated(s%sub)) then
+          ca = max(ca, c)
+          c = sqrt(2.0_wp)*max(abs(p%v(1, ip)), abs(p%v(2, ip))) + sqrt(norm2(s%opt%gravity)*s%g%h)
+        end if
         if (.not. (abs(p%sig(1, ip)) + abs(p%sig(2, ip)) + abs(p%sig(3, ip)) + c < huge(1.0_wp))) then
           write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': NaN or Inf in the stress or velocity of solid particle ', &
             ip, '; the run became unstable (reduce cfl, check materials)'
@@ -307,5 +355,7 @@ contains
       end do
     end associate
     s%diag(5) = se
+    ! the substeps' signal speed, from this state (a restart from it steps alike)
+    if (associated(s%sub)) s%sub%smax = ca
   end subroutine solid_stress
 end module cpdi_fsi

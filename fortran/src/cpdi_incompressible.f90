@@ -77,6 +77,9 @@ module cpdi_incompressible
     real(wp), allocatable :: iu(:), iv(:)     !! batty: the pressure's impulse on the solid faces
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
+    ! Deformable solids subcycled inside the water's step (cpdi_step subcycle_solids, cpdi_fsi)
+    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto
+    logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
   public :: incomp_prepare, incomp_step, incomp_transfer_cycle
@@ -830,6 +833,11 @@ contains
     if (ic%coupled .and. ic%coupling == COUPLING_BATTY) then
       call batty_correction()
       return
+    end if
+    if (ic%coupled .and. ic%subcycled) then
+      ! subcycled: the cell's total fill, water and solid, must stay <= 1 (water that ran into a
+      ! solid's cells is pushed out again; the solids move in their own substeps, not with this)
+      ic%fillw = ic%mc%fill
     end if
     if (ic%coupled) then   ! the water's own over-filling only: a solid's volume is not packing
       if (.not. any(ic%fillw > 1.0_wp .and. ic%mc%cell == CELL_FLUID)) return

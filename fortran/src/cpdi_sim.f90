@@ -106,6 +106,12 @@ module cpdi_sim
     integer(ik) :: team = 0                  !! the faster team when last chosen (1 or 2; 0: not yet)
     integer(ik) :: since_probe = 0           !! steps since the other team size was last measured
     integer(ik) :: probe_gap = PROBE_MIN     !! steps between probes of the other team (cpdi_step)
+    ! Deformable solids coupled to the incompressible water, subcycled at the water's pace
+    ! ([solver] solid_substeps): their explicit steps run in `sub`, a simulation of those
+    ! particles alone on the same grid, inside each water step (cpdi_step subcycle_solids).
+    type(sim_t), pointer :: sub => null()     !! the solids' own simulation (null: none)
+    integer(ik), allocatable :: isub(:)       !! per particle of sub: its index here
+    real(wp), allocatable :: xw(:, :)         !! sub's positions at the start of the water step (2, n of sub)
   end type sim_t
 
   public :: tic, toc, all_ok, all_int, tic_master, toc_master

@@ -27,27 +27,30 @@ module cpdi_step
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, &
                          CPDI_ERR_CFL
-  use cpdi_grid, only: grid_fields
+  use cpdi_grid, only: grid_fields, grid_init
+  use cpdi_particles, only: particles_alloc
   use cpdi_materials, only: MAT_RIGID_BODY
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
   use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
-  use cpdi_fsi, only: fsi_prepare, fsi_step
+  use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
-                      PROBE_COST
+                      PROBE_COST, UPDATE_USL
   use cpdi_grid_update, only: node_range, grid_update
   use cpdi_transfer, only: p2g, g2p
   use cpdi_constitutive, only: deformation_update, projected_deformation, stress_update, project_mean_stress
   implicit none
   private
 
-  public :: sim_prepare, sim_step, sim_stable_dt, probe_cap, sim_check_inside
+  public :: sim_prepare, sim_step, sim_stable_dt, probe_cap, sim_check_inside, sim_release
+
+  integer(ik), parameter :: MAX_SUBSTEPS = 100000   !! solid substeps in one water step before a run is refused
 
 contains
 
-  subroutine sim_prepare(s, st)
+  recursive subroutine sim_prepare(s, st)
     !! Check the pieces fit together and bring derived state up to date. Called before
     !! stepping whenever grid, materials, particles or options changed.
     type(sim_t), intent(inout) :: s
@@ -170,7 +173,7 @@ contains
     end if
   end subroutine refuse_shape
 
-  subroutine prepare_incompressible(s, st)
+  recursive subroutine prepare_incompressible(s, st)
     !! The incompressible water model's checks and storage; signal speed of the state.
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
@@ -195,8 +198,151 @@ contains
     if (s%smax < 0.0_wp) s%smax = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
     s%visc_dt = huge(1.0_wp)
     if (s%inc%visc > 0.0_wp) s%visc_dt = 0.25_wp*s%inc%rho*s%g%h**2/s%inc%visc
-    if (s%inc%coupled) call fsi_prepare(s, st)   ! solids coupled to the water (cpdi_fsi)
+    if (s%inc%coupled) then   ! solids coupled to the water (cpdi_fsi), subcycled if chosen
+      call prepare_solids(s, st)
+      if (.not. st%ok()) call sim_release(s)   ! no half-built substeps' simulation is stepped
+      if (st%ok()) call fsi_prepare(s, st)
+    end if
   end subroutine prepare_incompressible
+
+  recursive subroutine prepare_solids(s, st)
+    !! The deformable solids' own simulation (s%sub) when [solver] solid_substeps is on: their
+    !! particles alone on the same grid, with the explicit step of the weakly compressible model
+    !! (USL, the run's shape, kinematics, cfl, flip and gravity; no damping, contact or
+    !! projection). Its walls obey the solid's volume constraint (one contact field: a body lands
+    !! on the floor, not a cell above it). None without a deformable solid, or with a prescribed
+    !! rigid body in the run (its nodes would be missing from the substeps): those runs keep the
+    !! solids' acoustic step.
+    type(sim_t), intent(inout) :: s
+    type(status_t), intent(inout) :: st
+    integer(ik) :: ip, k, n
+    logical :: keep(s%p%n)
+    call sim_release(s)
+    s%inc%subcycled = .false.
+    if (s%inc%substeps == 0) return
+    if (any(s%rigid(s%p%mat))) return
+    keep = s%inc%solid(s%p%mat)
+    n = count(keep)
+    if (n == 0) return
+    allocate (s%sub)
+    allocate (s%isub(n), s%xw(2, n))
+    k = 0
+    do ip = 1, s%p%n
+      if (.not. keep(ip)) cycle
+      k = k + 1
+      s%isub(k) = ip
+    end do
+    associate (u => s%sub)
+      call grid_init(u%g, s%g%origin, s%g%ncell, s%g%h, s%g%walls, st)
+      if (.not. st%ok()) return
+      u%has_grid = .true.
+      allocate (u%mats(size(s%mats)), u%rigid(size(s%mats)), u%fluid(size(s%mats)))
+      u%mats = s%mats
+      u%rigid = s%rigid
+      u%fluid = s%fluid
+      u%any_rigid = .false.
+      u%has_materials = .true.
+      call particles_alloc(u%p, n, st)
+      if (.not. st%ok()) return
+      u%p%m = s%p%m(s%isub)
+      u%p%vol0 = s%p%vol0(s%isub)
+      u%p%r0 = s%p%r0(:, s%isub)
+      u%p%mat = s%p%mat(s%isub)
+      call to_sub(s)
+      u%has_particles = .true.
+      allocate (u%body(n))
+      u%body = 1
+      u%contact = .true.   ! one field: the walls' volume constraint only (nothing to contact)
+      u%fullness = s%fullness
+      u%opt = s%opt
+      u%opt%fluid = 0
+      u%opt%update = UPDATE_USL
+      u%opt%projection = PROJ_NONE
+      u%opt%damping = 0.0_wp
+      u%opt%fixed_dt = 0
+      u%min_per_thread = s%min_per_thread
+      u%t = s%t
+      u%smax = -1.0_wp
+      call sim_prepare(u, st)
+    end associate
+    s%inc%subcycled = st%ok()
+  end subroutine prepare_solids
+
+  recursive subroutine sim_release(s)
+    !! Free the solids' own simulation, if any.
+    type(sim_t), intent(inout) :: s
+    if (associated(s%sub)) then
+      call sim_release(s%sub)
+      deallocate (s%sub)
+    end if
+    s%sub => null()
+    if (allocated(s%isub)) deallocate (s%isub)
+    if (allocated(s%xw)) deallocate (s%xw)
+  end subroutine sim_release
+
+  subroutine to_sub(s)
+    !! The solids' state into their own simulation; their body force with the water's (aw) of
+    !! this water step's projection.
+    type(sim_t), intent(inout) :: s
+    associate (u => s%sub, i => s%isub)
+      u%p%x = s%p%x(:, i)
+      u%p%v = s%p%v(:, i)
+      u%p%F = s%p%F(:, i)
+      u%p%L = s%p%L(:, i)
+      u%p%sig = s%p%sig(:, i)
+      u%p%r = s%p%r(:, i)
+      u%p%vol = s%p%vol(i)
+      u%p%psi = s%p%psi(i)
+      u%p%jbar = s%p%jbar(i)
+      u%p%bf = s%p%bf(:, i) + s%p%aw(:, i)
+    end associate
+  end subroutine to_sub
+
+  recursive subroutine subcycle_solids(s, dt, st)
+    !! The solids' explicit steps over the water's step dt (as many as their own stable step
+    !! needs, the last one landing on t + dt), under gravity, their body forces and the water's
+    !! force of this step's projection (p%aw, cpdi_fsi); then their state back here.
+    type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    type(status_t), intent(inout) :: st
+    real(wp) :: tend
+    integer(ik) :: k, code
+    character(len=600) :: buf
+    call to_sub(s)
+    associate (u => s%sub, i => s%isub)
+      s%xw = u%p%x
+      u%t = s%t
+      tend = s%t + dt
+      k = 0
+      do while (tend - u%t > 1.0e-12_wp*dt)
+        call sim_step(u, tend - u%t, st)
+        if (.not. st%ok()) then   ! the substep's message, told as this water step's
+          code = st%code
+          write (buf, '(a,i0,2a)') 'step ', s%steps + 1, ', solid substep: ', trim(st%msg)
+          call st%clear()
+          call st%set(code, trim(buf))
+          return
+        end if
+        k = k + 1
+        if (k > MAX_SUBSTEPS) then
+          write (buf, '(a,i0,a,i0,a)') 'step ', s%steps + 1, ': the solids needed more than ', MAX_SUBSTEPS, &
+            ' explicit substeps in one water step; a solid is too stiff for this grid (lower its modulus, '// &
+            'use model = "rigid_body" or [solver] solid_substeps = "off")'
+          call st%set(CPDI_ERR_CFL, trim(buf))
+          return
+        end if
+      end do
+      s%p%x(:, i) = u%p%x
+      s%p%v(:, i) = u%p%v
+      s%p%F(:, i) = u%p%F
+      s%p%L(:, i) = u%p%L
+      s%p%sig(:, i) = u%p%sig
+      s%p%r(:, i) = u%p%r
+      s%p%vol(i) = u%p%vol
+      s%p%psi(i) = u%p%psi
+      s%p%jbar(i) = u%p%jbar
+    end associate
+  end subroutine subcycle_solids
 
   subroutine prepare_fields(s, st)
     !! One velocity field, or one per contact group when contact is on. A field made only
@@ -236,7 +382,7 @@ contains
     sim_stable_dt = min(s%g%h/max(s%smax, tiny(1.0_wp)), s%visc_dt)
   end function sim_stable_dt
 
-  subroutine sim_step(s, dt_cap, st)
+  recursive subroutine sim_step(s, dt_cap, st)
     !! Advance by one explicit step of at most dt_cap.
     type(sim_t), intent(inout) :: s
     real(wp), intent(in) :: dt_cap
@@ -278,7 +424,11 @@ contains
     proj = s%opt%projection /= PROJ_NONE
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
       if (s%inc%coupled) then
-        call fsi_step(s, dt, st)
+        call fsi_step(s, dt, st)   ! the water's step, and its force on the solids (p%aw)
+        if (associated(s%sub)) then   ! the deformable solids' own steps under that force
+          if (st%ok()) call subcycle_solids(s, dt, st)
+          if (st%ok()) call fsi_finish(s, dt, st)
+        end if
       else
         call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
       end if
