@@ -265,7 +265,7 @@ def _coerce(path: str, spec: Key, value):
         return _number_rows(path, value, 2, 3, "at least three [x, y] points, e.g. [[0.0, 0.0], [1.0, 0.0], "
                                                "[0.0, 1.0]]")
     if kind == "pointlist":
-        return _number_rows(path, value, 2, 1, "a list of [x, y] points, e.g. [[0.5, 0.4], [0.6, 0.45]]")
+        return _number_rows(path, value, 2, 1, "one or more [x, y] points, e.g. [[0.5, 0.4], [0.6, 0.45]]")
     if kind == "rows3":
         value = _number_rows(path, value, 3, 1, "[t, vx, vy] rows, e.g. [[0.0, 0.0, -1.0], [0.1, 0.0, -2.0]]")
         bad = [i for i in range(1, len(value)) if not value[i][0] > value[i - 1][0]]

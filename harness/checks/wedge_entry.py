@@ -39,8 +39,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from harness import cases, parallel, paths, refdata, runner
-from harness.probes import SurfacePressure
 from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.probes import SurfacePressure
 
 NAME = "wedge_entry"
 REQUIREMENT = ("A wedge of deadrise 30 degrees enters water at rest at constant speed V (incompressible water, no "
@@ -179,8 +179,9 @@ def run(ctx: CheckContext) -> CheckResult:
     ax.text(0.02, 0.97, f"collapse error {mf['collapse_err']:.1%} of the peak; Cp_max {mf['cp_max']:.2f} "
                         f"({mf['cp_max_rel_similarity']:.1%} from {ref['similarity_cp_max']:g}); "
                         f"F/(rho V^3 t) = {mf['force_coef']:.2f} (Wagner {ref['wagner_force_coef']:.2f})",
-            transform=ax.transAxes, va="top", fontsize=7, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-    ax.set_xlim(0, max(1.0, max(p["zeta"][-1] for p in fin["profiles"][-1:])))
+            transform=ax.transAxes, va="top", fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+    ax.set_xlim(0.0, 2.5)
     ax.set_ylim(bottom=min(0.0, *(p["cp"].min() for p in fin["profiles"])))
     ax.legend(fontsize=7, loc="center right")
     fig.tight_layout()
