@@ -92,3 +92,17 @@ def test_points_in_the_air_read_zero_and_the_points_move_with_the_body():
         np.testing.assert_allclose(n, normals, atol=1e-9)
     finally:
         sim.close()
+
+
+def test_a_body_driven_into_water_at_rest_limits_the_step():
+    # no gravity, water at rest: only the prescribed body's speed (1 m/s down) sets the step,
+    # cfl h / (sqrt(2) |v|) (cpdi_fsi solid_stress); before, the first step went to t = 1e305 s
+    case = tank(RIGHT, velocity=(0.0, -1.0), depth=0.3, t_end=0.1, gravity=(0.0, 0.0))
+    sim, parts = runner.build(case)
+    try:
+        steps, t = sim.advance(0.1)
+        bound = 0.5 * H / (2.0**0.5 * 1.0)
+        assert t == pytest.approx(0.1)
+        assert steps >= 0.1 / bound and sim.diagnostics()["dt"] <= bound * (1 + 1e-12)
+    finally:
+        sim.close()
