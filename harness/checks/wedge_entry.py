@@ -205,6 +205,12 @@ def run(ctx: CheckContext) -> CheckResult:
     fig.savefig(ctx.fig_dir / "wedge_entry_cp.png", dpi=120)
     plt.close(fig)
     res.figures.append("wedge_entry_cp.png")
+    if len(outs) > 1:
+        errs = [res.metrics[f"h{o['h']:g}".replace(".", "") + "_collapse_err"] for o in outs]
+        hs_run = [o["h"] for o in outs]
+        rates = [math.log(errs[i] / errs[i + 1]) / math.log(hs_run[i] / hs_run[i + 1]) for i in range(len(errs) - 1)]
+        res.notes.append("Observed order of the collapse error between successive h: "
+                         + ", ".join(f"{r:.2f}" for r in rates) + ".")
     if math.isnan(ref["similarity_force_coef"]):
         res.notes.append("Not evaluated: F/(rho V^3 t) within 10 % of the similarity solution's (value not found).")
     return res
