@@ -77,9 +77,12 @@ GEOMETRY_KEYS = {"rectangle": ("min", "max", "angle"), "annulus": ("center", "r_
 PROBE = {
     "kind": Key("choice", "what to measure (defaults to the probe's name)",
                 choices=("front_x", "column_height", "displacement_x", "displacement_y", "com_x", "com_y", "com_vx",
-                         "com_vy", "bottom", "top", "left", "right")),
+                         "com_vy", "bottom", "top", "left", "right", "surface_pressure")),
     "material": Key("str", "material whose particles are probed (default: all)"),
     "point": Key("vec2", "initial position of the probed point (displacement probes)", "m"),
+    "body": Key("str", "name of the solid body whose wetted surface is probed (surface_pressure)"),
+    "points": Key("pointlist", "initial positions [[x, y], ...] on the body's surface, within half a cell of "
+                  "it; they move with the body (surface_pressure: one column NAME_i per point, Pa)", "m"),
     "layer": Key("float", "thickness of the floor / wall layer (default: one cell)", "m", check=positive),
     "min_count": Key("int", "front: particles needed within 2 spacings behind the front", default=3,
                      check=lambda v: None if v >= 1 else "must be at least 1"),
@@ -265,6 +268,8 @@ def _coerce(path: str, spec: Key, value):
     if kind == "points":
         return _number_rows(path, value, 2, 3, "at least three [x, y] points, e.g. [[0.0, 0.0], [1.0, 0.0], "
                                                "[0.0, 1.0]]")
+    if kind == "pointlist":
+        return _number_rows(path, value, 2, 1, "one or more [x, y] points, e.g. [[0.5, 0.4], [0.6, 0.45]]")
     if kind == "rows3":
         value = _number_rows(path, value, 3, 1, "[t, vx, vy] rows, e.g. [[0.0, 0.0, -1.0], [0.1, 0.0, -2.0]]")
         bad = [i for i in range(1, len(value)) if not value[i][0] > value[i - 1][0]]
@@ -489,9 +494,50 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
             raise CaseError(f"probes.{name} needs 'point' (initial position of the probed point, m)")
         if "material" in p and p["material"] not in names:
             raise CaseError(f"probes.{name}.material = '{p['material']}' is not a defined material")
+        if p["kind"] == "surface_pressure":
+            _validate_surface_probe(f"probes.{name}", p, bodies, mats, data["solver"], grid)
+        else:
+            for k in ("body", "points"):
+                if k in p:
+                    raise CaseError(f"probes.{name}.{k} applies to kind = \"surface_pressure\" only; remove it")
         probes[name] = p
     data["probes"] = probes
     return data
+
+
+SURFACE_PROBE_SHAPES = ("rectangle", "disc", "polygon")
+
+
+def _validate_surface_probe(where: str, p: dict, bodies: list, mats: list, solver: dict, grid: dict) -> None:
+    """A surface_pressure probe: a named solid body of the incompressible water, a shape whose outward
+    normal the probe can take (rectangle, disc, polygon), points within half a cell of its boundary."""
+    if solver["fluid"] != "incompressible":
+        raise CaseError(f"{where}: surface_pressure samples the incompressible water's cell pressure; set "
+                        "solver.fluid = \"incompressible\" or remove the probe")
+    for k, what in (("body", "the name of a solid body"), ("points", "[[x, y], ...] on its surface, m")):
+        if k not in p:
+            raise CaseError(f"{where} needs '{k}' ({what})")
+    named = [b for b in bodies if b["name"] == p["body"]]
+    if len(named) != 1:
+        known = [b["name"] for b in bodies if b["name"]]
+        raise CaseError(f"{where}.body = '{p['body']}' is not the name of exactly one body"
+                        f"{_suggest(p['body'], known) if known else ''}; name the body in [[bodies]]")
+    body = named[0]
+    model = next(m["model"] for m in mats if m["name"] == body["material"])
+    if model == "newtonian_fluid":
+        raise CaseError(f"{where}.body = '{p['body']}' is water; name a solid body (rigid, rigid_body, hencky, "
+                        "neo_hookean)")
+    geo = body["geometry"]
+    if geo["type"] not in SURFACE_PROBE_SHAPES:
+        raise CaseError(f"{where}: the body's geometry is a {geo['type']}; surface_pressure takes a "
+                        f"{', '.join(SURFACE_PROBE_SHAPES)}")
+    from harness.probes import boundary_normal  # the probe's own geometry (no import cycle at load time)
+
+    for i, pt in enumerate(p["points"]):
+        d, _ = boundary_normal(geo, pt)
+        if d > 0.5 * grid["cell"]:
+            raise CaseError(f"{where}.points[{i}] = {pt} lies {d:.3g} m from the body's surface, more than half a "
+                            f"cell ({0.5 * grid['cell']:g} m); give points on its boundary")
 
 
 # --------------------------------------------------------------------------- loading

@@ -32,7 +32,7 @@ import numpy as np
 from harness import checkpoint
 from harness.cases import Case, CaseError
 from harness.output import SeriesWriter, SnapshotWriter, corners, write_json
-from harness.probes import ProbeSet
+from harness.probes import ProbeSet, SurfacePressure
 from harness.seeding import ParticleSet, seed
 from harness.solver import MODELS, CpdiError, Simulation, pressure
 
@@ -248,7 +248,8 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
         raise
     probes = ProbeSet(case, parts)
     loads = WaterLoads(case, parts)
-    columns = SERIES_BASE + probes.names + loads.names
+    surface = SurfacePressure(case, parts)
+    columns = SERIES_BASE + probes.names + surface.names + loads.names
     rows: dict[str, list[float]] = {c: [] for c in columns}
     ck = None
     if restart is not None:  # read and check everything before any output is touched
@@ -298,6 +299,7 @@ def run(case: Case, out_dir: Path | None = None, progress: bool = True, snapshot
         row = {c: d.get(c, 0.0) for c in SERIES_BASE}
         row["t"] = t
         row.update(probes.evaluate(state["x"], state["v"]))
+        row.update(surface.evaluate(sim, state["x"]))
         row.update(loads.evaluate(sim, state["x"]))
         for c in columns:
             rows[c].append(row[c])

@@ -23,7 +23,9 @@ CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking",
           "elastic_obstacle", "rigid_obstacle", "resting_tank", "dam_break_pressure", "floating_block",
           "sinking_block"]
 # Runnable with --only but not yet part of the gated set (see the issue notes for why).
-EXPERIMENTAL: list[str] = []
+# wedge_entry (issue 40 item 4): its self-similarity gate fails at every h tried, 0.02-0.0025 (the profiles
+# part at the spray root; docs/notes/wedge_entry.md), so it would fail the quick tier of make test.
+EXPERIMENTAL: list[str] = ["wedge_entry"]
 
 
 def _check_bar(total: int, progress: bool, file=None):

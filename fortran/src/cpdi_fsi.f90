@@ -324,7 +324,10 @@ contains
     !! Stress and strain energy (diag 5) of the solid particles; cs: their largest signal
     !! speed c + |v| (the explicit solid's step limit), or, with the solids subcycled (s%sub),
     !! sqrt(2) |v|_max + sqrt(|g| h), the water's own measure: the water step only has to keep
-    !! the solids within a cell; their substeps keep to their speed of sound (sub%smax).
+    !! the solids within a cell; their substeps keep to their speed of sound (sub%smax). Also
+    !! sqrt(2) max(|vx|, |vy|) of every prescribed rigid material's velocity, the water's measure
+    !! of speed (a body driven through water at rest would otherwise set no limit, and one step
+    !! could carry it anywhere).
     type(sim_t), intent(inout) :: s
     real(wp), intent(out) :: cs
     type(status_t), intent(inout) :: st
@@ -334,6 +337,9 @@ contains
     cs = 0.0_wp
     ca = 0.0_wp
     se = 0.0_wp
+    do ip = 1, min(size(s%mats), size(s%rigid))
+      if (s%rigid(ip)) cs = max(cs, sqrt(2.0_wp)*maxval(abs(s%mats(ip)%vel)))
+    end do
     associate (p => s%p)
       do ip = 1, p%n
         if (s%fluid(p%mat(ip)) .or. s%rigid(p%mat(ip)) .or. s%inc%free(p%mat(ip))) cycle
