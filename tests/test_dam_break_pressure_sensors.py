@@ -114,3 +114,13 @@ def test_de_courcy_curves_are_read_per_sensor():
     assert set(d) == {"3", "4"}
     for t, p in d.values():
         assert t.size == p.size > 100 and np.all(np.diff(t) >= 0)
+
+
+def test_each_level_is_a_whole_number_of_cells_and_the_fine_ones_use_multigrid():
+    from harness import cases
+    for n in (*dbp.LEVELS_QUICK, *dbp.LEVELS_FULL):
+        c = cases.load(dbp.CASE, dbp.level_settings(n))   # the loader refuses a partial cell
+        assert c["grid"]["cell"] == pytest.approx(dbp.H / n, rel=1e-12)
+        assert abs(c["grid"]["size"][0] - 1.61) <= c["grid"]["cell"] / 2
+        assert c["solver"]["pressure_precond"] == ("multigrid" if n >= dbp.MULTIGRID_FROM else "mic0")
+    assert dbp.level_settings(30) == ["grid.cell=0.01"]   # the experiment's run: the check's grid before issue 38

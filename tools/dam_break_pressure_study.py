@@ -4,9 +4,10 @@
 
 Steps cases/dam_break_pressure.toml (with the overrides) in 0.01 t* windows, as the check does,
 and stores per sample: t*, the check's sensor (the wall column's cell pressure), the right-hand
-3 columns of cell pressure and fill, and the water particles within 30 mm of the downstream wall
-and below 150 mm (position, pressure), so that other sensor definitions can be evaluated
-afterwards. Prints the wall time and the means of both definitions over 3 <= t* <= 5.5.
+3 columns of cell pressure and fill, the volume change (harness.water.volume_change), and the
+water particles within 30 mm of the downstream wall and below 150 mm (position, pressure), so
+that other sensor definitions can be evaluated afterwards. Prints the wall time, the cell
+sensor means over 3 <= t* <= 5.5 and the volume change.
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ def main() -> None:
     xw = g["origin"][0] + g["size"][0]
     sim, parts = runner.build(case)
     t0 = time.perf_counter()
-    t, ts, cell_s, cols, fills, px, pp, pn = 0.0, [], [], [], [], [], [], []
+    t, ts, cell_s, cols, fills, px, pp, pn, vch = 0.0, [], [], [], [], [], [], [], []
+    ncell = (round(g["size"][0] / h), round(g["size"][1] / h))
     while t < t_end * (1 - 1e-12):
         _, t = sim.advance(min(t + 0.01 / dbp.TSTAR, t_end), land=False)
         gp = sim.grid_pressure()
@@ -51,6 +53,7 @@ def main() -> None:
         px.append(x[sel].copy())
         pp.append(p[sel].copy())
         pn.append(int(sel.sum()))
+        vch.append(water.volume_change(x, st["vol"], g["origin"], h, ncell))
     wall = time.perf_counter() - t0
     d = sim.diagnostics()
     sim.close()
@@ -60,10 +63,12 @@ def main() -> None:
     np.savez_compressed(a.out, tstar=tt, cell_sensor=cs, cols=np.array(cols), fills=np.array(fills),
                         px=np.concatenate(px), pp=np.concatenate(pp), offsets=off, cell=h, wall=wall,
                         steps=d["steps"], cg=d["cg_iterations_total"], dp=h / case["bodies"][0]["ppc"],
-                        settings=np.array(a.set))
+                        settings=np.array(a.set), volume_change=np.array(vch))
     w = (tt >= 3) & (tt <= 5.5)
     print(f"h={h} steps={int(d['steps'])} wall={wall:.1f}s cg/step={d['cg_iterations_total'] / d['steps']:.1f} "
-          f"cell-sensor means s3={cs[w, 0].mean():.3f} s4={cs[w, 1].mean():.3f}")
+          f"cell-sensor means s3={cs[w, 0].mean():.3f} s4={cs[w, 1].mean():.3f} "
+          f"volume change at t*=3, 5.5, 6: {vch[np.argmin(abs(tt - 3))]:.4f} {vch[np.argmin(abs(tt - 5.5))]:.4f} "
+          f"{vch[-1]:.4f}")
 
 
 if __name__ == "__main__":

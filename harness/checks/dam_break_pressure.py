@@ -12,8 +12,8 @@ Code-to-code gates (issue 38), against the converged 2D single-phase reference
 (reference/data/lobovsky_2d_numerical/, TrixiParticles EDAC H/400: means 0.822 and 0.363):
 a resolution study at h = H/30, H/60, H/120 (quick tier H/20, H/30; the runs from H/60 on use
 the multigrid preconditioner); at the two finest h the mean over 3 <= t* <= 5.5 (references'
-definition) within 10 % and the sustained impact time (the first sample from which p* stays
->= 0.1 for 0.05 t*) within 0.1 t* of the reference's; and the mean's error at the finest h no
+definition) within 10 %; at the finest h the sustained impact time (the first sample from which
+p* stays >= 0.1 for 0.05 t*) within 0.1 t* of the reference's; and the mean's error at the finest h no
 larger than at the coarsest (plus 0.02 for the window mean's sampling noise).
 
 Against the one recorded repetition of the experiment
@@ -46,8 +46,9 @@ from harness.runner import build
 NAME = "dam_break_pressure"
 REQUIREMENT = ("A 0.6 m x 0.3 m water column collapses in a 1.61 m tank; the downstream-wall pressure at 30 and "
                "80 mm follows the converged 2D single-phase reference (TrixiParticles EDAC H/400): mean over "
-               "3 <= t* <= 5.5 within 10 % and sustained impact within 0.1 t* at the two finest h, the mean's error "
-               "falling with h; against Lobovsky et al. (2014): first rise within 0.1 t*; water volume change <= 1 %.")
+               "3 <= t* <= 5.5 within 10 % at the two finest h, sustained impact within 0.1 t* at the finest, the "
+               "mean's error falling with h; against Lobovsky et al. (2014): first rise within 0.1 t*; water volume "
+               "change <= 1 %.")
 CASE = paths.CASES / "dam_break_pressure.toml"
 REF = "lobovsky_2014_pressure_H300_sensors34_event5.csv"
 REF_2D = "lobovsky_2d_numerical/trixiparticles_edac_400.csv"   # the gated code-to-code reference
@@ -163,6 +164,21 @@ def sustained_impact(t, p, level: float = 0.1, hold: float = 0.05) -> float:
     return math.inf
 
 
+def level_settings(n: int) -> list[str]:
+    """Case overrides of the run at h = H/n: the cell, the tank length and grid height as whole
+    cells (H/20: 1.605 m = 5.35 H, as the references' H/40 tank, and 0.93 m), the multigrid
+    preconditioner from MULTIGRID_FROM on."""
+    h = round(H / n, 12)
+    case = cases.load(CASE)
+    lx, ly = case["grid"]["size"]
+    sets = [f"grid.cell={h}"]
+    if abs(lx / h - round(lx / h)) > 1e-9 or abs(ly / h - round(ly / h)) > 1e-9:
+        sets.append(f"grid.size=[{round(round(lx / h) * h, 12)}, {round(math.ceil(ly / h - 1e-9) * h, 12)}]")
+    if n >= MULTIGRID_FROM:
+        sets.append('solver.pressure_precond="multigrid"')
+    return sets
+
+
 def reference_2d(name: str = REF_2D) -> dict:
     """A 2D reference's series: t*, and p* per sensor ("3", "4")."""
     d = refdata.read(name)
@@ -180,8 +196,7 @@ def run(ctx: CheckContext) -> CheckResult:
     ref = refdata.read(REF)
     ref2d = reference_2d()
     levels = LEVELS_QUICK if ctx.quick else LEVELS_FULL
-    jobs = [(cases.load(CASE, [f"grid.cell={H / n}"] + (['solver.pressure_precond="multigrid"']
-                                                        if n >= MULTIGRID_FROM else [])), True) for n in levels]
+    jobs = [(cases.load(CASE, level_settings(n)), True) for n in levels]
     jobs.append((cases.load(CASE, [*WC_SETTINGS, f"grid.cell={H_COARSE}"]), False))
     out = parallel.pmap(_run, jobs[::-1])[::-1]   # the longest first
     for label, r in zip([f"incompressible H/{n}" for n in levels] + ["weakly compressible"], out, strict=True):
@@ -229,11 +244,13 @@ def run(ctx: CheckContext) -> CheckResult:
                                 f"sensor{name}_mean_rel_2d_h{n}": abs(errs[n]),
                                 f"sensor{name}_impact_dt_2d_h{n}": dt_imp})
             if n in fine:
-                res.gates += [
-                    Gate.at_most(f"sensor{name}_mean_rel_2d_h{n}", abs(errs[n]), MEAN_TOL_2D,
-                                 f"2D reference (EDAC H/400, {m_ref:.3f}): mean over 3 <= t* <= 5.5, H/{n}"),
-                    Gate.at_most(f"sensor{name}_impact_dt_2d_h{n}", dt_imp, IMPACT_TOL_2D,
-                                 f"2D reference: sustained p* >= 0.1 from t* = {t_ref:.2f}, H/{n}")]
+                res.gates.append(Gate.at_most(
+                    f"sensor{name}_mean_rel_2d_h{n}", abs(errs[n]), MEAN_TOL_2D,
+                    f"2D reference (EDAC H/400, {m_ref:.3f}): mean over 3 <= t* <= 5.5, H/{n}"))
+            if n == levels[-1]:
+                res.gates.append(Gate.at_most(
+                    f"sensor{name}_impact_dt_2d_h{n}", dt_imp, IMPACT_TOL_2D,
+                    f"2D reference: sustained p* >= 0.1 from t* = {t_ref:.2f}, H/{n} (the finest)"))
         trend = abs(errs[levels[-1]]) - abs(errs[levels[0]])
         res.metrics[f"sensor{name}_mean_err_trend"] = trend
         res.gates.append(Gate.at_most(
@@ -273,7 +290,7 @@ def _figures(ctx, res, ref, ref2d, runs, wc) -> None:
     blues = plt.cm.Blues(np.linspace(0.45, 1.0, len(levels)))
     dc = decourcy()
     others = {lab: reference_2d(f) for lab, f in REF_2D_SHOWN.items()}
-    fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(8, 8), sharex=True)
     for ax, (k, name) in zip(axes, enumerate(SENSORS, start=1), strict=True):
         ax.plot(ref["t_star"][::20], ref[f"p{name}"][::20], ".", ms=2, color="0.45",
                 label="Lobovsky et al. (2014), experiment")
@@ -282,7 +299,7 @@ def _figures(ctx, res, ref, ref2d, runs, wc) -> None:
         for lab, r2 in others.items():
             ax.plot(r2["t"], r2[name], ":", lw=1.0, color="tab:red", zorder=4, label=lab)
         ax.plot(*dc[name], "-.", lw=0.8, color="tab:green", zorder=4, label="De Courcy et al. (2024), H/400")
-        ax.plot(wc["series"][:, 0], wc["series"][:, k], "-", lw=0.6, alpha=0.35, color="tab:orange", zorder=1,
+        ax.plot(wc["series"][:, 0], wc["series"][:, k], "-", lw=0.5, alpha=0.2, color="tab:orange", zorder=1,
                 label=f"weakly compressible, c = 10 sqrt(2gH), h = {H_COARSE} m")
         for c, n in zip(blues, levels, strict=True):
             r = runs[n]
@@ -298,10 +315,11 @@ def _figures(ctx, res, ref, ref2d, runs, wc) -> None:
                 transform=ax.transAxes, fontsize=7, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"},
                 zorder=5)
         ax.axvspan(3.0, 5.5, color="0.9", zorder=0)
-    axes[1].legend(fontsize=6, loc="upper right", ncol=2)
     axes[1].set_xlabel("t* = t sqrt(g/H)")
     axes[0].set_xlim(2.0, 6.0)
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.13, 1.0, 1.0))
     fig.savefig(ctx.fig_dir / "dam_break_pressure_sensors.png", dpi=120)
     plt.close(fig)
 
