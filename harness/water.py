@@ -61,3 +61,33 @@ def wall_sensor(cell_p: np.ndarray, origin: tuple[float, float], h: float, side:
     w = np.sqrt(1.0 - s**2)
     y = z + 0.5 * diameter * s
     return float(np.sum(w * np.interp(y, yc, col)) / np.sum(w))
+
+
+def wendland_c2(q: np.ndarray) -> np.ndarray:
+    """2D Wendland C2 kernel shape of q = r / support (support radius 1), unnormalised:
+    (1 - q)^4 (1 + 4 q) for q < 1, else 0. A Shepard average needs no normalisation."""
+    q = np.asarray(q, dtype=float)
+    return np.where(q < 1.0, (1.0 - np.minimum(q, 1.0)) ** 4 * (1.0 + 4.0 * q), 0.0)
+
+
+def kernel_wall_sensor(x: np.ndarray, p: np.ndarray, vol: np.ndarray | None, wall_x: float, z: float,
+                       length: float, support: float, npoints: int = 10) -> float:
+    """Pressure a wall sensor reads as the SPH references of Lobovsky's dam break define it
+    (TrixiParticles' pressure sensors; reference/data/lobovsky_2d_numerical_README.md): the
+    mean over `npoints` evenly spaced points of a vertical segment of `length` centred at
+    height z on the wall x = wall_x (end points included), each point's value a Shepard-
+    normalised Wendland C2 average, of compact support radius `support`, of the water
+    particles' pressures p (n,) at positions x (n, 2), every negative pressure clipped to 0
+    first. Particles weigh by their volume (equal weights if vol is None). A point with no
+    particle within its support reads 0."""
+    x = np.asarray(x, dtype=float)
+    pc = np.clip(np.asarray(p, dtype=float), 0.0, None)
+    w0 = np.ones(len(pc)) if vol is None else np.asarray(vol, dtype=float)
+    ys = z + length * (np.linspace(0.0, 1.0, npoints) - 0.5)
+    vals = []
+    for y in ys:
+        r = np.hypot(x[:, 0] - wall_x, x[:, 1] - y)
+        w = w0 * wendland_c2(r / support)
+        s = float(w.sum())
+        vals.append(float(np.dot(w, pc)) / s if s > 0.0 else 0.0)
+    return float(np.mean(vals))

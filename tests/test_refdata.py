@@ -56,15 +56,15 @@ def test_a_header_only_file_has_empty_columns(tmp_path):
     assert set(cols) == {"t", "p"} and all(len(v) == 0 for v in cols.values())
 
 
-DATASETS = sorted(refdata.DATA.glob("*.csv"))
+DATASETS = sorted(refdata.DATA.rglob("*.csv"))
 
 
-@pytest.mark.parametrize("path", DATASETS, ids=[p.name for p in DATASETS])
+@pytest.mark.parametrize("path", DATASETS, ids=[str(p.relative_to(refdata.DATA)) for p in DATASETS])
 def test_every_reference_dataset_cites_its_source_and_reads_whole(path):
     head = refdata.header(path)
     assert any(re.search(r"\b(19|20)\d\d\b", ln) for ln in head), "no citation (a year) in the header"
     names = next(ln for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")).split(",")
-    cols = refdata.read(path.name)
+    cols = refdata.read(path.relative_to(refdata.DATA))
     assert list(cols) == names
     lengths = {len(v) for v in cols.values()}
     assert len(lengths) == 1 and lengths.pop() > 0
