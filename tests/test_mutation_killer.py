@@ -90,10 +90,10 @@ def test_a_resumed_run_with_ids_runs_only_those_and_keeps_the_sample():
     from tools.mutation.execute import pending
     from tools.mutation.generate import Mutant
 
-    ms = [Mutant(f"f:{i}:h", "fortran/src/f.f90", i, "a ==> b", "a", "b") for i in range(5)]
+    ms = [Mutant(f"f:{i}:h", "fortran/src/f.f90", i, "a ==> b", "a", "b", f"f:r:k{i}") for i in range(5)]
     done = {"f:0:h": {"verdict": "survived", "tier": "full"}, "f:1:h": {"verdict": "survived", "tier": "full"},
             "f:2:h": {"verdict": "killed", "tier": "fast"}, "f:3:h": {"verdict": "survived", "tier": "full"}}
-    marked = {"f:3:h"}
+    marked = {"f:r:k3"}   # marks name content keys
     assert [m.id for m in pending(ms, done, marked, verify=False)] == ["f:4:h"]
     assert [m.id for m in pending(ms, done, marked, verify=True)] == ["f:4:h", "f:0:h", "f:1:h"]
     assert [m.id for m in pending(ms, done, marked, verify=True, only={"f:1:h"})] == ["f:1:h"]

@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from tools.mutation.generate import Mutant
-from tools.mutation.summary import equivalent_ids
+from tools.mutation.summary import equivalent_keys
 
 # The fast tier: unit-level tests of kernels, transfers, constitutive models, walls and the
 # incompressible step (each file runs in seconds, ~30 s in all). The full tier is what
@@ -175,7 +175,7 @@ def pending(mutants: list[Mutant], done: dict[str, dict], marked: set[str], veri
     todo = [m for m in mutants if m.id not in done]
     random.Random(len(mutants)).shuffle(todo)
     if verify:
-        todo += [m for m in mutants if m.id in done and m.id not in marked and done[m.id]["verdict"] == "survived"
+        todo += [m for m in mutants if m.id in done and m.key not in marked and done[m.id]["verdict"] == "survived"
                  and done[m.id].get("tier") == "full"]
     return [m for m in todo if only is None or m.id in only]
 
@@ -187,7 +187,7 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
     (old and new). With verify_timeout, a survivor of the whole `make test` (also one journalled
     before) then runs `make verify` (the verify tier), limited to verify_timeout s."""
     done = {r["id"]: r for r in journal_rows(journal, mutants)}
-    marked = set(equivalent_ids())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
+    marked = set(equivalent_keys())   # equivalent by hand: the fast tier only (a kill there contradicts the mark)
     todo = pending(mutants, done, marked, bool(verify_timeout), only)
     if not todo:
         return [done[m.id] for m in mutants if m.id in done]
@@ -209,8 +209,8 @@ def run_all(repo: Path, rev: str, mutants: list[Mutant], journal: Path, jobs: in
     def one(m: Mutant) -> dict:
         w = free.get()
         try:
-            return _test_one(w, m, fast_timeout, full_timeout, full and m.id not in marked,
-                             verify_timeout if m.id not in marked else None, done.get(m.id))
+            return _test_one(w, m, fast_timeout, full_timeout, full and m.key not in marked,
+                             verify_timeout if m.key not in marked else None, done.get(m.id))
         finally:
             free.put(w)
 

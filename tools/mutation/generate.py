@@ -29,12 +29,45 @@ IGNORE = [
 
 @dataclass(frozen=True)
 class Mutant:
-    id: str        # stable: file, line and a hash of the mutated line
+    id: str        # this commit's name: file, line and a hash of the mutated line
     file: str      # path relative to the repository
     line: int      # 1-based
     rule: str      # the rule that made it (LHS ==> RHS)
     before: str
     after: str
+    key: str = ""  # by content, what equivalence marks name: file, routine, statement and mutation
+
+
+ROUTINE = re.compile(r"^\s*(?:(?:pure|elemental|recursive|impure|module|integer|real|logical|complex|"
+                     r"type\s*\([^)]*\)|(?:integer|real|logical)\s*\([^)]*\))\s+)*"
+                     r"(?:subroutine|function)\s+(\w+)", re.IGNORECASE)
+END_ROUTINE = re.compile(r"^\s*end\s*(?:subroutine|function)\b", re.IGNORECASE)
+
+
+def routines(lines: list[str]) -> list[str]:
+    """The innermost subroutine or function each line is in ("module" outside any)."""
+    out, stack = [], []
+    for text in lines:
+        code = text.split("!")[0]
+        if END_ROUTINE.match(code):
+            out.append(stack[-1] if stack else "module")
+            if stack:
+                stack.pop()
+            continue
+        m = ROUTINE.match(code)
+        if m and not code.strip().lower().startswith("end"):
+            stack.append(m.group(1).lower())
+        out.append(stack[-1] if stack else "module")
+    return out
+
+
+def content_key(stem: str, routine: str, before: str, after: str, occurrence: int) -> str:
+    """stem:routine:hash of the statement and its mutation (blanks normalised), ":n" for the n-th
+    same mutation of the same statement in one routine (n >= 2). Moving code leaves it unchanged;
+    editing the statement, or moving it to another routine, changes it."""
+    norm = " ".join(before.split()) + "\n" + " ".join(after.split())
+    key = f"{stem}:{routine}:{hashlib.sha1(norm.encode()).hexdigest()[:8]}"
+    return key if occurrence == 1 else f"{key}:{occurrence}"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -55,8 +88,9 @@ def file_mutants(repo: Path, rel: str) -> list[Mutant]:
     lines = (repo / rel).read_text(encoding="utf-8").splitlines(keepends=True)
     with contextlib.redirect_stdout(io.StringIO()):
         raw = mutator.mutants_regexp(lines, ruleFiles=RULES, ignorePatterns=IGNORE)
-    out, seen = [], set()
-    for lineno, text, rule, _ in raw:
+    where = routines(lines)
+    out, seen, count = [], set(), {}
+    for lineno, text, rule, _ in sorted(raw, key=lambda r: r[0]):
         before = lines[lineno - 1]
         if text.strip() == before.strip() or (lineno, text) in seen or text.count("\n") > 1:
             continue
@@ -64,8 +98,10 @@ def file_mutants(repo: Path, rel: str) -> list[Mutant]:
             continue
         seen.add((lineno, text))
         digest = hashlib.sha1(text.encode()).hexdigest()[:8]
-        out.append(Mutant(f"{Path(rel).stem}:{lineno}:{digest}", rel, lineno, rule[0], before.rstrip("\n"),
-                          text.rstrip("\n")))
+        stem, routine = Path(rel).stem, where[lineno - 1]
+        nth = count[(routine, before.strip(), text.strip())] = count.get((routine, before.strip(), text.strip()), 0) + 1
+        out.append(Mutant(f"{stem}:{lineno}:{digest}", rel, lineno, rule[0], before.rstrip("\n"),
+                          text.rstrip("\n"), content_key(stem, routine, before, text, nth)))
     return out
 
 

@@ -13,19 +13,26 @@ KILLED = ("killed", "killed (time limit)")
 
 
 def stale_marks(generated: set[str], files: list[str], marks: dict[str, str] | None = None) -> list[str]:
-    """Marks (ids of equivalent.toml) of the given source files that name no mutant the sources
-    give now. An id holds the line number and a hash of the mutated line, so moving or editing
-    that line orphans its mark, and the mutant would then count as a survivor unnoticed."""
+    """Marks (keys of equivalent.toml) of the given source files that name no mutant the sources
+    give now. A key holds the file, the routine, the statement and its mutation (not the line), so
+    moving code keeps its mark; editing the marked statement orphans it, and the mutant would
+    then count as a survivor unnoticed: the mark must be reviewed again."""
     stems = {Path(f).stem for f in files}
-    marks = equivalent_ids() if marks is None else marks
+    marks = equivalent_keys() if marks is None else marks
     return sorted(i for i in marks if i.split(":", 1)[0] in stems and i not in generated)
 
 
-def equivalent_ids() -> dict[str, str]:
-    """Mutants marked equivalent by hand (reviewed), id -> reason."""
+def equivalent_keys() -> dict[str, str]:
+    """Mutants marked equivalent by hand (reviewed), content key -> reason."""
     if not EQUIVALENT.is_file():
         return {}
-    return {e["id"]: e["reason"] for e in tomllib.loads(EQUIVALENT.read_text()).get("mutant", [])}
+    return {e["key"]: e["reason"] for e in tomllib.loads(EQUIVALENT.read_text()).get("mutant", [])}
+
+
+def mark(row: dict) -> str:
+    """What a mark names for a report row or mutant: its content key (rows of reports made before
+    the keys existed have only their line-based id, which no mark names)."""
+    return row.get("key") or row["id"]
 
 
 def score(rows: list[dict]) -> dict:
@@ -33,10 +40,10 @@ def score(rows: list[dict]) -> dict:
     file: by `make test` (kill_rate: the fast and full tiers), and by make test and `make verify`
     (the verify tier, run on make test's survivors with --verify); the share of the killed ones
     that the fast tier killed."""
-    eq = equivalent_ids()
+    eq = equivalent_keys()
 
     def counts(rs):
-        live = [r for r in rs if r["verdict"] in (*KILLED, "survived") and r["id"] not in eq]
+        live = [r for r in rs if r["verdict"] in (*KILLED, "survived") and mark(r) not in eq]
         every_kill = [r for r in live if r["verdict"] in KILLED]
         killed = [r for r in every_kill if r.get("tier") != "verify"]
         fast = [r for r in killed if r.get("tier") == "fast"]
@@ -47,7 +54,7 @@ def score(rows: list[dict]) -> dict:
                 "kill_rate_with_verify": len(every_kill) / len(live) if live else float("nan"),
                 "killed_by_fast_tier": len(fast) / len(killed) if killed else float("nan"),
                 "no_compile": sum(r["verdict"] == "no-compile" for r in rs),
-                "equivalent": sum(r["id"] in eq for r in rs),
+                "equivalent": sum(mark(r) in eq for r in rs),
                 "time_limit": sum(r["verdict"] == "killed (time limit)" for r in rs)}
 
     by_file = defaultdict(list)
@@ -63,7 +70,7 @@ def _pct(x: float) -> str:
 def write(out: Path, rows: list[dict], meta: dict) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     sc = score(rows)
-    eq = equivalent_ids()
+    eq = equivalent_keys()
     (out / "mutants.json").write_text(json.dumps({"meta": meta, "score": sc, "mutants": rows}, indent=1) + "\n")
     o = sc["overall"]
     md = [f"# Mutation testing of the Fortran core ({meta['rev'][:12]}, {meta['date']})", "",
@@ -77,8 +84,8 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
           "| file | mutants | counted | killed | kill rate | fast tier share |", "|---|---|---|---|---|---|"]
     md += [f"| {f} | {c['mutants']} | {c['counted']} | {c['killed']} | {_pct(c['kill_rate'])} | "
            f"{_pct(c['killed_by_fast_tier'])} |" for f, c in sc["files"].items()]
-    surv = [r for r in rows if (r["verdict"] == "survived" or r.get("tier") == "verify") and r["id"] not in eq]
-    wrong = [r for r in rows if r["id"] in eq and r["verdict"] in KILLED]
+    surv = [r for r in rows if (r["verdict"] == "survived" or r.get("tier") == "verify") and mark(r) not in eq]
+    wrong = [r for r in rows if mark(r) in eq and r["verdict"] in KILLED]
     if wrong:   # a test told them apart: the mark is wrong (they are run through the fast tier only)
         md += ["", f"**{len(wrong)} mutants marked equivalent were killed** (check their marks in "
                "tools/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
@@ -143,7 +150,7 @@ def _html(out: Path, sc: dict, rows: list[dict], eq: dict, meta: dict) -> None:
     body.append("</table><h2>Every mutant</h2><table><tr><th>mutant</th><th>diff</th><th>verdict</th>"
                 "<th>killed by</th><th>s</th></tr>")
     for r in rows:
-        v = "equivalent: " + eq[r["id"]] if r["id"] in eq else r["verdict"]
+        v = "equivalent: " + eq[mark(r)] if mark(r) in eq else r["verdict"]
         body.append(f"<tr style='background:{colour.get(r['verdict'], '#f6f8fa')}'><td>{e(r['file'])}:{r['line']}</td>"
                     f"<td><pre>- {e(r['before'].strip())}\n+ {e(r['after'].strip())}</pre></td><td>{e(v)}</td>"
                     f"<td>{e(r['killed_by'])}</td><td>{r['seconds']:.0f}</td></tr>")
