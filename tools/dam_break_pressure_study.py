@@ -1,6 +1,6 @@
 """Lobovsky dam break: runs for the sensor study of issue 38 (docs/notes/dam_break_pressure_sensor4.md).
 
-``.venv/bin/python tools/dam_break_pressure_study.py OUT.npz --cell 0.01 [--set key=value ...]``
+``.venv/bin/python -m tools.dam_break_pressure_study OUT.npz --cell 0.01 [--set key=value ...]``
 
 Steps cases/dam_break_pressure.toml (with the overrides) in 0.01 t* windows, as the check does,
 and stores per sample: t*, the check's sensor (the wall column's cell pressure), the right-hand

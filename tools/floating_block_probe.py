@@ -1,7 +1,7 @@
 """One floating_block run with the check's own set-up and gates, plus what the subcycling trials
 measured (docs/notes/fsi_subcycling.md).
 
-``.venv/bin/python tools/floating_block_probe.py [--substeps off|auto] [--rho 500] [--cell 0.05]
+``.venv/bin/python -m tools.floating_block_probe [--substeps off|auto] [--rho 500] [--cell 0.05]
 [--t-end 4.0] [--set key=value ...]``
 
 The case is harness.checks.floating_block's (its `overrides`: the block's density, the water

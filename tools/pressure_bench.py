@@ -1,6 +1,6 @@
 """Pressure-solver benchmark: MIC(0)-CG against multigrid-CG on the Lobovsky dam break.
 
-``.venv/bin/python tools/pressure_bench.py [--cells 0.01 0.005 0.0025] [--tstar 1.0] [--steps 20]``
+``.venv/bin/python -m tools.pressure_bench [--cells 0.01 0.005 0.0025] [--tstar 1.0] [--steps 20]``
 
 For each cell size the case (cases/dam_break_pressure.toml, incompressible, APIC) is stepped with
 the multigrid preconditioner to t* = ``--tstar`` (the collapsing column: a moving surface), its
