@@ -82,7 +82,7 @@ module cpdi_incompressible
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
-  public :: incomp_prepare, incomp_step, incomp_transfer_cycle
+  public :: incomp_prepare, incomp_step, incomp_transfer_cycle, incomp_reproject
 
 contains
 
@@ -600,6 +600,154 @@ contains
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
     call toc(timers, 4, t0)
   end subroutine incomp_step
+
+  subroutine incomp_reproject(ic, p, dt, diag, st, steps)
+    !! Subcycled solids (cpdi_step): after their substeps, the second projection of the coupled
+    !! step. On every face the solid reaches, the solid's velocity at the step's end (its
+    !! particles' momentum on the face lattice, the weights of the step's start) joins the
+    !! water's projected face velocity by mass; that field is projected again with the first
+    !! projection's operator (cells, coefficients rho / rho_face), and each takes the change of
+    !! its own face velocity: the water particles (added to their velocity, as a FLIP increment)
+    !! and the solid particles (directly; their stress is not evaluated again). The faces shared
+    !! at the step's end then carry one velocity. Mass averaging and a projection in the mass norm
+    !! remove kinetic energy on the faces, never add it. The first projection's pressure is kept
+    !! (the run's pressure output). diag 4, 6, 7: the water's kinetic energy and momentum updated.
+    !! TRIAL (docs/notes/fsi_subcycling.md, "The second projection"): the environment variable
+    !! CPDI_REPROJ picks what takes the change: 0 or unset both, 1 the water only, 2 the solids
+    !! only, 3 both with the solids' change on the faces the water shares only, -1 none.
+    type(incomp_t), intent(inout) :: ic
+    type(particles_t), intent(inout) :: p
+    real(wp), intent(in) :: dt
+    real(wp), intent(inout) :: diag(:)
+    type(status_t), intent(inout) :: st
+    integer(int64), intent(in) :: steps
+    integer(ik) :: ip, a, k, i, j, n1
+    real(wp) :: mtol, w, gxk, gyk, d(2), mt, dke, dmom(2)
+    logical :: converged
+    character(len=400) :: buf
+    integer :: dbgm
+    call get_environment_variable('CPDI_REPROJ', buf)
+    dbgm = 0
+    if (len_trim(buf) > 0) read (buf, *) dbgm
+    if (dbgm < 0) return   ! -1: none (auto as before the trial)
+    mtol = 1.0e-12_wp*minval(p%m)
+    n1 = ic%mc%nn(1)
+    associate (mc => ic%mc)
+      ic%sfill = mc%p   ! the first projection's pressure, restored below (sfill: batty's scratch)
+      ic%us = 0.0_wp
+      ic%vs = 0.0_wp
+      do ip = 1, p%n   ! the solid's momentum on the faces, its particles at the step's end
+        if (.not. ic%solid(p%mat(ip))) cycle
+        do a = 1, shape_count(ic%shu, ip)
+          call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
+          ic%us(k) = ic%us(k) + w*p%m(ip)*p%v(1, ip)
+        end do
+        do a = 1, shape_count(ic%shv, ip)
+          call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
+          ic%vs(k) = ic%vs(k) + w*p%m(ip)*p%v(2, ip)
+        end do
+      end do
+      mc%uo = mc%u   ! the water's face velocities (the first projection's)
+      mc%vo = mc%v
+      do j = 1, mc%nn(2) - 1
+        do i = 1, n1 - 1
+          k = i + (j - 1)*n1
+          if (ic%usm(k) > mtol) then
+            ic%us(k) = ic%us(k)/ic%usm(k)
+            mt = mc%um(k) + ic%usm(k)
+            if (mc%um(k) > mtol) then
+              mc%u(k) = (mc%um(k)*mc%u(k) + ic%usm(k)*ic%us(k))/mt
+            else
+              mc%u(k) = ic%us(k)
+            end if
+          end if
+          if (ic%vsm(k) > mtol) then
+            ic%vs(k) = ic%vs(k)/ic%vsm(k)
+            mt = mc%vm(k) + ic%vsm(k)
+            if (mc%vm(k) > mtol) then
+              mc%v(k) = (mc%vm(k)*mc%v(k) + ic%vsm(k)*ic%vs(k))/mt
+            else
+              mc%v(k) = ic%vs(k)
+            end if
+          end if
+        end do
+      end do
+      call mac_walls(mc)
+      call mac_assemble(mc, dt, ic%rho, 0.0_wp)
+      call mac_solve(mc, ic%tol, ic%maxit, converged)
+      diag(17) = diag(17) + real(mc%iters, wp)
+      if (.not. converged) then
+        write (buf, '(a,i0,a,es10.3,a,i0,a,es9.2,a)') 'step ', steps + 1, ': the second pressure solve did not '// &
+          'converge (relative residual ', mc%resid, ' after ', mc%iters, ' CG iterations, tolerance ', ic%tol, &
+          '); reduce [solver] cfl, or raise [solver] cg_max_iterations or cg_tolerance'
+        call st%set(CPDI_ERR_SOLVE, trim(buf))
+        return
+      end if
+      call mac_project(mc, dt, ic%rho)
+      ! the changes: the water's on every face the projection set (extrapolated beyond, as the
+      ! first projection's FLIP increments), the solid's on its faces
+      do k = 1, size(mc%u)
+        if (ic%usm(k) > mtol .and. mc%uval(k) == 1 .and. (dbgm /= 3 .or. mc%um(k) > mtol)) then
+          ic%us(k) = mc%u(k) - ic%us(k)
+        else
+          ic%us(k) = 0.0_wp
+        end if
+        if (ic%vsm(k) > mtol .and. mc%vval(k) == 1 .and. (dbgm /= 3 .or. mc%vm(k) > mtol)) then
+          ic%vs(k) = mc%v(k) - ic%vs(k)
+        else
+          ic%vs(k) = 0.0_wp
+        end if
+      end do
+      where (mc%uval == 1)
+        mc%uo = mc%u - mc%uo
+      elsewhere
+        mc%uo = 0.0_wp
+      end where
+      where (mc%vval == 1)
+        mc%vo = mc%v - mc%vo
+      elsewhere
+        mc%vo = 0.0_wp
+      end where
+      call mac_extrapolate(mc, mc%u, mc%uval, EXTRAPOLATION_LAYERS)
+      call mac_extrapolate(mc, mc%uo, mc%uval, EXTRAPOLATION_LAYERS)
+      call mac_extrapolate(mc, mc%v, mc%vval, EXTRAPOLATION_LAYERS)
+      call mac_extrapolate(mc, mc%vo, mc%vval, EXTRAPOLATION_LAYERS)
+      dke = 0.0_wp
+      dmom = 0.0_wp
+      do ip = 1, p%n
+        if (ic%rigid(p%mat(ip)) .or. ic%free(p%mat(ip))) cycle
+        d = 0.0_wp
+        if (ic%solid(p%mat(ip))) then
+          do a = 1, shape_count(ic%shu, ip)
+            call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
+            d(1) = d(1) + w*ic%us(k)
+          end do
+          do a = 1, shape_count(ic%shv, ip)
+            call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
+            d(2) = d(2) + w*ic%vs(k)
+          end do
+          if (dbgm /= 1) p%v(:, ip) = p%v(:, ip) + d
+        else
+          if (dbgm == 2) cycle
+          do a = 1, shape_count(ic%shu, ip)
+            call shape_slot(ic%shu, ip, a, k, w, gxk, gyk)
+            d(1) = d(1) + w*mc%uo(k)
+          end do
+          do a = 1, shape_count(ic%shv, ip)
+            call shape_slot(ic%shv, ip, a, k, w, gxk, gyk)
+            d(2) = d(2) + w*mc%vo(k)
+          end do
+          dke = dke + 0.5_wp*p%m(ip)*(dot_product(p%v(:, ip) + d, p%v(:, ip) + d) - dot_product(p%v(:, ip), p%v(:, ip)))
+          dmom = dmom + p%m(ip)*d
+          p%v(:, ip) = p%v(:, ip) + d
+        end if
+      end do
+      diag(4) = diag(4) + dke
+      diag(6:7) = diag(6:7) + dmom
+      mc%p = ic%sfill
+      ic%sfill = 0.0_wp
+    end associate
+  end subroutine incomp_reproject
 
   subroutine solid_to_faces(ic, nm, nvx, nvy, mtol)
     !! The single continuum: on every face the solid reaches, its mass (us from the nodal
