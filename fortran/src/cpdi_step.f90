@@ -33,7 +33,7 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, incomp_reproject, FLUID_INCOMPRESSIBLE
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
@@ -427,8 +427,6 @@ contains
         call fsi_step(s, dt, st)   ! the water's step, and its force on the solids (p%aw)
         if (associated(s%sub)) then   ! the deformable solids' own steps under that force
           if (st%ok()) call subcycle_solids(s, dt, st)
-          ! the second projection: water and solids at the step's end share their faces' velocity
-          if (st%ok()) call incomp_reproject(s%inc, s%p, dt, s%diag, st, s%steps)
           if (st%ok()) call fsi_finish(s, dt, st)
         end if
       else
