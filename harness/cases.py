@@ -120,6 +120,9 @@ SCHEMA: dict[str, Key] = {
                   check=positive),
         "t_end": Key("float", "simulated end time", "s", required=True, check=positive),
         "gravity": Key("vec2", "gravitational acceleration", "m/s^2", default=[0.0, -9.81]),
+        "body_acceleration": Key("vec2", "uniform, constant body force per unit mass on every particle, added to "
+                                         "gravity through the solver's per-particle body force (a tank accelerating "
+                                         "at a: -a, the frame's inertial force)", "m/s^2", default=[0.0, 0.0]),
         "output_every": Key("float", "interval between snapshots", "s", check=positive),
         "series_every": Key("float", "interval between series.csv rows (default output_every/10)", "s",
                             check=positive),
