@@ -31,8 +31,8 @@ module cpdi_sim
   !! on the volume correction's displacements (not in 8: the correction is no flow)
   integer(ik), parameter, public :: MIN_PER_THREAD = 16384
   !! particles per thread below which a step uses fewer threads: a step has about 20
-  !! barriers, and on the 2-core VM 8k CPDI particles ran 1.4x slower on 2 threads than on 1
-  !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
+  !! barriers, and a small step on 2 threads can run slower than on 1 (passive waits;
+  !! measurements: docs/notes/threads.md). Results do not depend on it.
   !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
   !! tests set it to 1 so that their small cases really run on several threads.
   integer(ik), parameter, public :: PROBE_MIN = 32    !! steps between probes of the slower team ...

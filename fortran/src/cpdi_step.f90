@@ -524,10 +524,10 @@ contains
     !! both team sizes (an average over the last steps), the faster one runs, and a step now
     !! and then runs on the other to keep its time current: PROBE_MIN steps after the faster
     !! team changed, and each probe that confirms the choice doubles the gap, up to PROBE_MAX (probe_cap)
-    !! (a probe costs a slow step: on the idle 2-core VM a 1-thread probe every 32 steps cost
-    !! ~1.5-3 %). Beside a busy process a waiting thread's spin holds a core its partner needs,
-    !! and 2 threads can take twice as long as 1; on an idle machine they take 0.5-0.65 of it
-    !! (docs/notes/threads.md). Results do not depend on the team (bitwise, cpdi_schedule).
+    !! (a probe costs a slow step). Beside a busy process a waiting thread's spin holds a core
+    !! its partner needs, and 2 threads can take longer than 1; on an idle machine they are
+    !! faster (measurements: docs/notes/threads.md). Results do not depend on the team (bitwise,
+    !! cpdi_schedule).
     type(sim_t), intent(inout) :: s
     integer, intent(in) :: nthr
     team = 0

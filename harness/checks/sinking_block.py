@@ -79,7 +79,7 @@ RUNS = {"_h0025": (("grid.cell=0.025",), "h = 0.025"),
         "_cfl05": (("solver.cfl=0.5",), "cfl 0.5"),
         "_series10ms": (("solver.series_every=0.01",), "series every 10 ms"),
         "_series5ms": (("solver.series_every=0.005",), "series every 5 ms")}
-QUICK = ("", "_rigid")  # the quick tier (CI): the base runs only (the Hencky h = 0.025 run alone is ~17 min)
+QUICK = ("", "_rigid")  # the quick tier (CI): the base runs only (the Hencky h = 0.025 run is the longest)
 RIGID = "materials.1.model=rigid_body"   # the block as a free rigid body
 RUNS.update({f"{k}_rigid": ((*x, RIGID), f"{label}, rigid body") for k, (x, label) in list(RUNS.items())})
 
