@@ -1,7 +1,7 @@
 """One floating_block run with the check's own set-up and gates, plus what the subcycling trials
 measured (docs/notes/fsi_subcycling.md).
 
-``.venv/bin/python -m tools.floating_block_probe [--substeps off|auto] [--rho 500] [--cell 0.05]
+``.venv/bin/python -m tools.floating_block_probe [--substeps off|auto|implicit] [--rho 500] [--cell 0.05]
 [--t-end 4.0] [--set key=value ...]``
 
 The case is harness.checks.floating_block's (its `overrides`: the block's density, the water
@@ -25,7 +25,7 @@ from harness.checks import floating_block as fb
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--substeps", default="auto", choices=("off", "auto"))
+    ap.add_argument("--substeps", default="auto", choices=("off", "auto", "implicit"))
     ap.add_argument("--rho", type=float, default=500.0, choices=[r for r, _ in fb.RUNS])
     ap.add_argument("--cell", type=float, default=0.05)
     ap.add_argument("--t-end", type=float, default=4.0)

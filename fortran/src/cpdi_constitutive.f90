@@ -241,6 +241,11 @@ contains
           cycle
         end if
         smax = max(smax, c)
+        if (s%devonly) then   ! implicit substeps: no in-plane mean stress in the forces (cpdi_step)
+          tr3 = 0.5_wp*(sig(1) + sig(2))
+          p%sig(1, ip) = sig(1) - tr3
+          p%sig(2, ip) = sig(2) - tr3
+        end if
         if (proj) then   ! the mean stress, for project_mean_stress
           p%work(1, ip) = (sig(1) + sig(2) + sig(4))/3.0_wp
           p%work(2, ip) = p%work(1, ip)

@@ -40,6 +40,9 @@ module cpdi_incompressible
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
+  integer(ik), parameter, public :: SUBSTEPS_AUTO = 1      !! solid_substeps = "auto"
+  integer(ik), parameter, public :: SUBSTEPS_IMPLICIT = 2  !! solid_substeps = "implicit": auto, the solids'
+                                                           !! volumetric stress implicit in the projection
 
   type, public :: incomp_t
     !! Settings and work storage of the incompressible water model.
@@ -78,7 +81,11 @@ module cpdi_incompressible
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
     ! Deformable solids subcycled inside the water's step (cpdi_step subcycle_solids, cpdi_fsi)
-    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto
+    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto,
+                                              !! 2 implicit
+    ! solid_substeps = "implicit" (cpdi_fsi solid_compliance): per cell, sum of w V_p / (h^2 K_p) over the
+    ! solid particles (cmp) and of w V_p p_p / (h^2 K_p) (cmpp), p_p their in-plane mean pressure at t^n
+    real(wp), allocatable :: cmp(:), cmpp(:)
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
@@ -173,12 +180,12 @@ contains
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
                                            ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
-                                           ic%sfill, ic%svol)
+                                           ic%sfill, ic%svol, ic%cmp, ic%cmpp)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
                   ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
                   ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), &
-                  ic%svol(g%nnodes), stat=m)
+                  ic%svol(g%nnodes), ic%cmp(size(ic%mc%fill)), ic%cmpp(size(ic%mc%fill)), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -189,7 +196,7 @@ contains
         ic%usm = 0.0_wp; ic%vsm = 0.0_wp; ic%uvw = 0.0_wp; ic%vvw = 0.0_wp; ic%uvs = 0.0_wp; ic%vvs = 0.0_wp
         ic%us = 0.0_wp; ic%vs = 0.0_wp; ic%umx = 0.0_wp; ic%vmx = 0.0_wp; ic%nwx = 0.0_wp; ic%nwy = 0.0_wp
         ic%fillw = 0.0_wp; ic%wu = 0.0_wp; ic%wv = 0.0_wp; ic%phi = 0.0_wp; ic%iu = 0.0_wp; ic%iv = 0.0_wp
-        ic%sfill = 0.0_wp; ic%svol = 0.0_wp
+        ic%sfill = 0.0_wp; ic%svol = 0.0_wp; ic%cmp = 0.0_wp; ic%cmpp = 0.0_wp
       end if
       call prepare_bodies()
       if (.not. st%ok()) return
@@ -559,6 +566,7 @@ contains
         call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
+        if (ic%coupled .and. ic%substeps == SUBSTEPS_IMPLICIT) call solid_helmholtz(ic, dt)
       end if
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
@@ -600,6 +608,34 @@ contains
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
     call toc(timers, 4, t0)
   end subroutine incomp_step
+
+  subroutine solid_helmholtz(ic, dt)
+    !! solid_substeps = "implicit": the solids' volumetric stress inside the projection (after
+    !! Stomakhin et al. 2014, their pressure equation for a compressible phase). A cell of solid
+    !! volume fraction phi changes its volume at the solid's rate, div v = -phi (p - p^n) / (K dt)
+    !! (backward Euler of dp = -K dJ / J, K the solid's in-plane bulk stiffness, p^n its in-plane
+    !! mean pressure at t^n); with v = v* - (dt / rho) a grad p that is
+    !!   A p + (rho h^2 / dt^2) (phi / K) p = (rho h^2 / dt) (-div v*) + (rho h^2 / dt^2) (phi / K) p^n,
+    !! a positive term on A's diagonal (A stays symmetric positive definite). cmp = phi / K and
+    !! cmpp = phi p^n / K per cell come from cpdi_fsi (solid_compliance). The pressure in a solid
+    !! cell is then the solid's volumetric stress at t^n+1; the predictor carried only its
+    !! deviatoric stress (cpdi_fsi solid_p2g), and so do the substeps (cpdi_step, sim_t%devonly).
+    type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in) :: dt
+    integer(ik) :: i, j, c, n1
+    real(wp) :: scale
+    n1 = ic%mc%nn(1)
+    scale = ic%rho*ic%mc%h**2/dt**2
+    do j = ic%mc%lo(2), ic%mc%hi(2)
+      do i = ic%mc%lo(1), ic%mc%hi(1)
+        c = i + (j - 1)*n1
+        if (ic%mc%cell(c) /= CELL_FLUID) cycle
+        if (ic%cmp(c) <= 0.0_wp) cycle
+        ic%mc%adiag(c) = ic%mc%adiag(c) + scale*ic%cmp(c)
+        ic%mc%b(c) = ic%mc%b(c) + scale*ic%cmpp(c)
+      end do
+    end do
+  end subroutine solid_helmholtz
 
   subroutine solid_to_faces(ic, nm, nvx, nvy, mtol)
     !! The single continuum: on every face the solid reaches, its mass (us from the nodal

@@ -33,7 +33,7 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, SUBSTEPS_IMPLICIT
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
@@ -220,6 +220,11 @@ contains
     call sim_release(s)
     s%inc%subcycled = .false.
     if (s%inc%substeps == 0) return
+    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling /= 0) then
+      call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
+                  'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
+      return
+    end if
     if (any(s%rigid(s%p%mat))) return
     keep = s%inc%solid(s%p%mat)
     n = count(keep)
@@ -253,6 +258,7 @@ contains
       allocate (u%body(n))
       u%body = 1
       u%contact = .true.   ! one field: the walls' volume constraint only (nothing to contact)
+      u%devonly = s%inc%substeps == SUBSTEPS_IMPLICIT   ! the volumetric stress is the projection's
       u%fullness = s%fullness
       u%opt = s%opt
       u%opt%fluid = 0
@@ -290,6 +296,10 @@ contains
       u%p%F = s%p%F(:, i)
       u%p%L = s%p%L(:, i)
       u%p%sig = s%p%sig(:, i)
+      if (u%devonly) then   ! the in-plane deviator (the projection's pressure is the mean stress)
+        u%p%sig(1, :) = s%p%sig(1, i) - 0.5_wp*(s%p%sig(1, i) + s%p%sig(2, i))
+        u%p%sig(2, :) = s%p%sig(2, i) - 0.5_wp*(s%p%sig(1, i) + s%p%sig(2, i))
+      end if
       u%p%r = s%p%r(:, i)
       u%p%vol = s%p%vol(i)
       u%p%psi = s%p%psi(i)
