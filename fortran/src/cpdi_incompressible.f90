@@ -89,7 +89,7 @@ module cpdi_incompressible
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
-  public :: incomp_prepare, incomp_step, incomp_transfer_cycle
+  public :: incomp_prepare, incomp_step, incomp_transfer_cycle, incomp_pressure_at
 
 contains
 
@@ -1029,6 +1029,28 @@ contains
     diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
+
+  real(wp) function incomp_pressure_at(ic, g, x) result(pp)
+    !! The last projection's pressure (with its ghost values, pe) at x, interpolated as a water
+    !! particle's is (g2p_faces).
+    type(incomp_t), intent(in) :: ic
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: x(2)
+    integer(ik) :: i0, j0, i, j, ix(2), jy(2)
+    real(wp) :: s(2), wx(2), wy(2)
+    s = (x - g%gorig)/g%h - 0.5_wp
+    i0 = int(floor(s(1))) + 1
+    j0 = int(floor(s(2))) + 1
+    s = s - floor(s)
+    call edge_weights(i0, s(1), ic%mc%lo(1), ic%mc%hi(1), ix, wx)
+    call edge_weights(j0, s(2), ic%mc%lo(2), ic%mc%hi(2), jy, wy)
+    pp = 0.0_wp
+    do j = 1, 2
+      do i = 1, 2
+        pp = pp + wx(i)*wy(j)*ic%mc%pe(ix(i) + (jy(j) - 1)*ic%mc%nn(1))
+      end do
+    end do
+  end function incomp_pressure_at
 
   pure subroutine edge_weights(i0, f, lo, hi, idx, w)
     !! Linear interpolation between cell centres i0 and i0 + 1 at fraction f along one axis,
