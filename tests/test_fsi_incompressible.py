@@ -414,6 +414,16 @@ def test_implicit_substeps_compress_a_neutral_block_by_its_bulk_stiffness_at_the
     assert t / steps >= 10 * 0.5 * H_CELL / c
 
 
+def test_implicit_substeps_need_the_mixture_coupling():
+    # batty's pressure lives in the water's cells only: no cell of it holds the solid's volumetric stress
+    with pytest.raises(CpdiError, match="mixture"):
+        sim, _ = tank_with_block(RHO, ((0.4, 0.1), (0.6, 0.3)), coupling="batty", solid_substeps="implicit")
+        try:
+            sim.advance(0.1)
+        finally:
+            sim.close()
+
+
 def test_batty_neutral_block_released_unstressed_feels_the_buoyancy_on_average():
     # coupling = "batty": the pressure acts on the solid's boundary only, so an elastic block
     # released without stress in resting water is not in equilibrium: the water's load
