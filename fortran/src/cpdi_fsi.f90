@@ -22,7 +22,7 @@ module cpdi_fsi
   use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
   use cpdi_materials, only: material_stresses
   use cpdi_kinematics, only: det2, map_domains
-  use cpdi_incompressible, only: incomp_step, COUPLING_BATTY, SUBSTEPS_IMPLICIT
+  use cpdi_incompressible, only: incomp_step, incomp_fill_weights, COUPLING_BATTY, SUBSTEPS_IMPLICIT
   use cpdi_sim, only: sim_t
   use cpdi_grid_update, only: impose_rigid
   use cpdi_rigid_body, only: rb_begin, rb_walls, rb_move
@@ -230,9 +230,8 @@ contains
     !! plane strain: the in-plane mean Kirchhoff stress is (lam + mu) ln J whatever the shear;
     !! (lam + mu) is the plane-strain bulk modulus E / (2 (1 + nu) (1 - 2 nu)) = K_3D + mu / 3).
     type(sim_t), intent(inout) :: s
-    integer(ik) :: ip, i, j, i0, j0, k, n1
-    real(wp) :: f(2), wx(2), wy(2), kp, pp, jv, av, c
-    n1 = s%inc%mc%nn(1)
+    integer(ik) :: ip, i, kc(4)
+    real(wp) :: wc(4), kp, pp, jv, av, c
     av = 1.0_wp/s%g%h**2
     s%inc%cmp = 0.0_wp
     s%inc%cmpp = 0.0_wp
@@ -243,18 +242,10 @@ contains
         kp = (s%mats(p%mat(ip))%lam + s%mats(p%mat(ip))%mu)*max(1.0_wp - log(jv), 0.1_wp)/jv
         pp = -0.5_wp*(p%sig(1, ip) + p%sig(2, ip))
         c = p%vol(ip)*av/kp
-        f = (p%x(:, ip) - s%g%gorig)/s%g%h - 0.5_wp
-        i0 = int(floor(f(1))) + 1
-        j0 = int(floor(f(2))) + 1
-        f = f - floor(f)
-        wx = [1.0_wp - f(1), f(1)]
-        wy = [1.0_wp - f(2), f(2)]
-        do j = 0, 1
-          do i = 0, 1
-            k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
-            s%inc%cmp(k) = s%inc%cmp(k) + wx(i + 1)*wy(j + 1)*c
-            s%inc%cmpp(k) = s%inc%cmpp(k) + wx(i + 1)*wy(j + 1)*c*pp
-          end do
+        call incomp_fill_weights(mc, s%g, p%x(:, ip), kc, wc)
+        do i = 1, 4
+          s%inc%cmp(kc(i)) = s%inc%cmp(kc(i)) + wc(i)*c
+          s%inc%cmpp(kc(i)) = s%inc%cmpp(kc(i)) + wc(i)*c*pp
         end do
       end do
     end associate

@@ -89,7 +89,7 @@ module cpdi_incompressible
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
-  public :: incomp_prepare, incomp_step, incomp_transfer_cycle, incomp_pressure_at
+  public :: incomp_prepare, incomp_step, incomp_transfer_cycle, incomp_pressure_at, incomp_fill_weights
 
 contains
 
@@ -298,8 +298,8 @@ contains
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: dt, gravity(2)
     logical, intent(in) :: apic
-    integer(ik) :: ip, a, k, i0, j0, i, j, n1
-    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av, vp
+    integer(ik) :: ip, a, k, i, j, n1, kc(4)
+    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), wc(4), av, vp
     logical :: solid, batty
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
@@ -346,18 +346,11 @@ contains
         j = int(s(2)) + 1
         if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2) .and. &
             .not. (solid .and. batty)) mc%cell(i + (j - 1)*n1) = CELL_FLUID
-        f = s - 0.5_wp
-        i0 = int(floor(f(1))) + 1
-        j0 = int(floor(f(2))) + 1
-        f = f - floor(f)
-        wx = [1.0_wp - f(1), f(1)]
-        wy = [1.0_wp - f(2), f(2)]
-        do j = 0, 1
-          do i = 0, 1
-            k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
-            mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*vp*av
-            if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wx(i + 1)*wy(j + 1)*vp*av
-          end do
+        call incomp_fill_weights(mc, g, p%x(:, ip), kc, wc)
+        do a = 1, 4
+          k = kc(a)
+          mc%fill(k) = mc%fill(k) + wc(a)*vp*av
+          if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wc(a)*vp*av
         end do
       end do
       ! a cell without a particle centre inside the water is still water: the particles'
@@ -1029,6 +1022,31 @@ contains
     diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
+
+  pure subroutine incomp_fill_weights(mc, g, x, k, w)
+    !! The four cells a particle at x spreads its volume over (the cell fill: bilinear over the
+    !! cell centres, indices clamped to the physical cells, a wall mirroring the water beyond it)
+    !! and their weights.
+    type(mac_t), intent(in) :: mc
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: x(2)
+    integer(ik), intent(out) :: k(4)
+    real(wp), intent(out) :: w(4)
+    integer(ik) :: i0, j0, i, j
+    real(wp) :: f(2), wx(2), wy(2)
+    f = (x - g%gorig)/g%h - 0.5_wp
+    i0 = int(floor(f(1))) + 1
+    j0 = int(floor(f(2))) + 1
+    f = f - floor(f)
+    wx = [1.0_wp - f(1), f(1)]
+    wy = [1.0_wp - f(2), f(2)]
+    do j = 0, 1
+      do i = 0, 1
+        k(1 + i + 2*j) = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*mc%nn(1)
+        w(1 + i + 2*j) = wx(i + 1)*wy(j + 1)
+      end do
+    end do
+  end subroutine incomp_fill_weights
 
   real(wp) function incomp_pressure_at(ic, g, x) result(pp)
     !! The last projection's pressure (with its ghost values, pe) at x, interpolated as a water
