@@ -154,9 +154,11 @@ SCHEMA: dict[str, Key] = {
                                           "multigrid V-cycle; iterations about constant)",
                                 choices=("mic0", "multigrid"), default="mic0"),
         "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
-                                        "solid's acoustic step) or auto (the solids' explicit steps subcycled inside "
-                                        "the water's step; docs/fsi_incompressible.md)",
-                              choices=("off", "auto"), default="off"),
+                                        "solid's acoustic step), auto (the solids' explicit steps subcycled inside "
+                                        "the water's step; docs/fsi_incompressible.md) or implicit (auto with the "
+                                        "solids' volumetric stress implicit in the projection, coupling mixture "
+                                        "only; a trial, docs/notes/fsi_subcycling.md)",
+                              choices=("off", "auto", "implicit"), default="off"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),

@@ -79,6 +79,10 @@ module cpdi_sim
     logical :: contact = .false.             !! multi-velocity-field contact between bodies
     real(wp) :: friction = 0.0_wp            !! Coulomb coefficient of contact
     real(wp) :: fullness = 0.9_wp            !! contact needs sum_b V_i^b >= fullness h^2 at the node
+    logical :: devonly = .false.             !! the in-plane deviatoric stress only in the nodal forces (the
+                                             !! substeps of solid_substeps = "implicit": the volumetric part is
+                                             !! the water step's projection pressure, in the body force aw)
+    real(wp) :: sub_t0 = 0.0_wp, sub_dt = 1.0_wp  !! devonly: the water step the substeps run in
     real(wp) :: dt_last = 0.0_wp
     type(shape_t) :: sh
     type(projection_t) :: proj
