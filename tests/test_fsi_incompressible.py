@@ -674,3 +674,19 @@ def test_coupled_water_step_is_the_advective_limit_of_its_fastest_particle():
     dt = sim.stable_dt()
     sim.close()
     assert dt == pytest.approx(H_CELL / (np.sqrt(2) * 3.0 + np.sqrt(G * H_CELL)), rel=1e-14)
+
+
+@pytest.mark.parametrize("mode", ["auto", "implicit"])
+def test_substeps_leave_a_run_without_deformable_solids_as_it_is(mode):
+    # solid_substeps only concerns deformable solids: a free rigid body (coupled through its boundary
+    # flux, whatever coupling says) runs bit for bit as with "off", and "implicit" is not refused
+    # for the batty coupling such a body implies
+    from harness import cases, paths, runner
+
+    def final(substeps):
+        case = cases.load(paths.CASES / "floating_block.toml",
+                          ['materials.1.model="rigid_body"', "solver.t_end=0.2", "solver.output_every=0.2",
+                           f'solver.solid_substeps="{substeps}"'])
+        return runner.run(case, None, progress=False).final["x"]
+
+    np.testing.assert_array_equal(final(mode), final("off"))

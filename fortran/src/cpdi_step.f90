@@ -220,15 +220,15 @@ contains
     call sim_release(s)
     s%inc%subcycled = .false.
     if (s%inc%substeps == 0) return
+    if (any(s%rigid(s%p%mat))) return
+    keep = s%inc%solid(s%p%mat)
+    n = count(keep)
+    if (n == 0) return   ! no deformable solid (water alone, or free rigid bodies): nothing to subcycle
     if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling /= 0) then
       call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
                   'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
       return
     end if
-    if (any(s%rigid(s%p%mat))) return
-    keep = s%inc%solid(s%p%mat)
-    n = count(keep)
-    if (n == 0) return
     allocate (s%sub)
     allocate (s%isub(n), s%xw(2, n))
     k = 0
