@@ -156,9 +156,10 @@ SCHEMA: dict[str, Key] = {
         "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
                                         "solid's acoustic step), auto (the solids' explicit steps subcycled inside "
                                         "the water's step; docs/fsi_incompressible.md) or implicit (auto with the "
-                                        "solids' volumetric stress implicit in the projection, coupling mixture "
-                                        "only; a trial, docs/notes/fsi_subcycling.md)",
-                              choices=("off", "auto", "implicit"), default="off"),
+                                        "solids' volumetric stress implicit in the projection; coupling mixture "
+                                        "only; docs/notes/fsi_subcycling.md). A run with a prescribed rigid body "
+                                        "(model rigid) keeps the acoustic step",
+                              choices=("off", "auto", "implicit"), default="implicit"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
@@ -487,6 +488,14 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
         if solver["shape"] == "gimp" and b["ppc"] < 1:
             raise CaseError(f"bodies[{i}].ppc must be at least 1 for gimp")
     data["bodies"] = bodies
+    used = {b["material"] for b in bodies}
+    models = {m["model"] for m in mats if m["name"] in used}
+    if (solver["fluid"] == "incompressible" and solver["solid_substeps"] == "implicit"
+            and solver["coupling"] == "batty" and models & {"hencky", "neo_hookean"} and "rigid" not in models):
+        raise CaseError("solver.solid_substeps = \"implicit\" (the default) needs coupling = \"mixture\": its "
+                        "projection carries the deformable solid's volumetric stress, and batty's pressure lives in "
+                        "the water's cells only; use coupling = \"mixture\", or solid_substeps = \"auto\" or "
+                        "\"off\" with batty")
 
     probes = {}
     for name, spec in (data.get("probes") or {}).items():
