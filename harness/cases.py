@@ -120,6 +120,9 @@ SCHEMA: dict[str, Key] = {
                   check=positive),
         "t_end": Key("float", "simulated end time", "s", required=True, check=positive),
         "gravity": Key("vec2", "gravitational acceleration", "m/s^2", default=[0.0, -9.81]),
+        "body_acceleration": Key("vec2", "uniform, constant body force per unit mass on every particle, added to "
+                                         "gravity through the solver's per-particle body force (a tank accelerating "
+                                         "at a: -a, the frame's inertial force)", "m/s^2", default=[0.0, 0.0]),
         "output_every": Key("float", "interval between snapshots", "s", check=positive),
         "series_every": Key("float", "interval between series.csv rows (default output_every/10)", "s",
                             check=positive),
@@ -151,9 +154,12 @@ SCHEMA: dict[str, Key] = {
                                           "multigrid V-cycle; iterations about constant)",
                                 choices=("mic0", "multigrid"), default="mic0"),
         "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
-                                        "solid's acoustic step) or auto (the solids' explicit steps subcycled inside "
-                                        "the water's step; docs/fsi_incompressible.md)",
-                              choices=("off", "auto"), default="off"),
+                                        "solid's acoustic step), auto (the solids' explicit steps subcycled inside "
+                                        "the water's step; docs/fsi_incompressible.md) or implicit (auto with the "
+                                        "solids' volumetric stress implicit in the projection; coupling mixture "
+                                        "only; docs/notes/fsi_subcycling.md). A run with a prescribed rigid body "
+                                        "(model rigid) keeps the acoustic step",
+                              choices=("off", "auto", "implicit"), default="implicit"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
@@ -482,6 +488,14 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
         if solver["shape"] == "gimp" and b["ppc"] < 1:
             raise CaseError(f"bodies[{i}].ppc must be at least 1 for gimp")
     data["bodies"] = bodies
+    used = {b["material"] for b in bodies}
+    models = {m["model"] for m in mats if m["name"] in used}
+    if (solver["fluid"] == "incompressible" and solver["solid_substeps"] == "implicit"
+            and solver["coupling"] == "batty" and models & {"hencky", "neo_hookean"} and "rigid" not in models):
+        raise CaseError("solver.solid_substeps = \"implicit\" (the default) needs coupling = \"mixture\": its "
+                        "projection carries the deformable solid's volumetric stress, and batty's pressure lives in "
+                        "the water's cells only; use coupling = \"mixture\", or solid_substeps = \"auto\" or "
+                        "\"off\" with batty")
 
     probes = {}
     for name, spec in (data.get("probes") or {}).items():

@@ -122,6 +122,8 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
                     cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
                     coupling=s["coupling"], pressure_precond=s["pressure_precond"],
                     solid_substeps=s["solid_substeps"])
+    if any(s["body_acceleration"]):
+        sim.set_body_force(np.tile(np.asarray(s["body_acceleration"], dtype=np.float64), (parts.x.shape[0], 1)))
     return sim, parts
 
 

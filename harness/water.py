@@ -36,16 +36,24 @@ def volume_change(x: np.ndarray, vol: np.ndarray, origin, h: float, ncell) -> fl
     return -float(np.sum(np.clip(fill - 1.0, 0.0, None))) * h**2 / float(np.sum(vol))
 
 
-def surface_height(x: np.ndarray, r: np.ndarray, x_lo: float, x_hi: float) -> float:
-    """Mean height of the water's top (particle centre plus half its domain's height) over
-    the particle columns between x_lo and x_hi."""
+def surface_columns(x: np.ndarray, r: np.ndarray, x_lo: float, x_hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """The water's top (particle centre plus half its domain's height) in each particle column
+    between x_lo and x_hi: (the column's mean particle x, its top), in column order."""
     half_y = np.abs(r[:, 1]) + np.abs(r[:, 3])
     sel = (x[:, 0] > x_lo) & (x[:, 0] < x_hi)
     cols = np.floor(x[sel, 0] / (2 * np.abs(r[sel, 0]).max())).astype(np.int64)
-    tops = {}
-    for c, top in zip(cols, x[sel, 1] + half_y[sel], strict=True):
+    tops: dict[int, float] = {}
+    xs: dict[int, list[float]] = {}
+    for c, xc, top in zip(cols, x[sel, 0], x[sel, 1] + half_y[sel], strict=True):
         tops[c] = max(tops.get(c, -np.inf), top)
-    return float(np.mean(list(tops.values())))
+        xs.setdefault(c, []).append(xc)
+    return (np.array([np.mean(xs[c]) for c in tops]), np.array(list(tops.values())))
+
+
+def surface_height(x: np.ndarray, r: np.ndarray, x_lo: float, x_hi: float) -> float:
+    """Mean height of the water's top (particle centre plus half its domain's height) over
+    the particle columns between x_lo and x_hi."""
+    return float(np.mean(surface_columns(x, r, x_lo, x_hi)[1]))
 
 
 def wall_sensor(cell_p: np.ndarray, origin: tuple[float, float], h: float, side: str, z: float,

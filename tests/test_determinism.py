@@ -45,16 +45,17 @@ def _stretched() -> dict:
     return d
 
 
-def _subcycled() -> dict:
+def _subcycled(substeps: str = "auto") -> dict:
     """A Hencky block dropped into incompressible water, its explicit steps subcycled inside the
     water's step (solid_substeps; cpdi_step subcycle_solids): the solid's substeps run the
-    explicit stages of the weakly compressible step, with the same threads."""
+    explicit stages of the weakly compressible step, with the same threads. substeps "implicit":
+    the solid's volumetric stress in the projection too (cpdi_fsi solid_compliance)."""
     return {
         "case": {"name": "subcycled_block", "requirement": "determinism"},
         "grid": {"size": [1.0, 1.0], "cell": 0.05,
                  "walls": {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"}},
         "solver": {"fluid": "incompressible", "shape": "cpdi", "update": "usl", "cfl": 0.5, "t_end": 10.0,
-                   "gravity": [0.0, -9.81], "flip": 0.99, "coupling": "mixture", "solid_substeps": "auto"},
+                   "gravity": [0.0, -9.81], "flip": 0.99, "coupling": "mixture", "solid_substeps": substeps},
         "materials": [{"name": "water", "model": "newtonian_fluid", "density": 1000.0, "viscosity": 1e-3},
                       {"name": "block", "model": "hencky", "density": 1500.0, "youngs_modulus": 1e6,
                        "poisson_ratio": 0.3}],
@@ -72,6 +73,7 @@ CASES = {
     "cpdi-contact": _with_block(),
     "cpdi-pool": _stretched(),
     "fsi-subcycled": _subcycled(),
+    "fsi-implicit": _subcycled("implicit"),
 }
 
 

@@ -43,3 +43,9 @@ def test_a_missing_target_is_found(tmp_path: Path) -> None:
     doc = tmp_path / "x.md"
     doc.write_text("see [the design](design.md) and `harness/nowhere.py`\n")
     assert _missing(doc) == ["design.md", "harness/nowhere.py"]
+
+
+def test_the_readme_stays_within_12_kb() -> None:
+    """Issue 39, item 5: the README is a user guide of at most 12 KB; details live in docs/."""
+    size = (REPO / "README.md").stat().st_size
+    assert size <= 12 * 1024, f"README.md is {size} B, more than 12 KB: move details to docs/"

@@ -393,6 +393,37 @@ def test_subcycled_neutral_block_at_rest_feels_exactly_the_buoyancy_at_the_water
     assert np.abs(st["v"]).max() <= 1e-6 * G * t / steps
 
 
+def test_implicit_substeps_compress_a_neutral_block_by_its_bulk_stiffness_at_the_waters_pace():
+    # solid_substeps = "implicit": the projection carries the solid's volumetric stress (a
+    # compliance term phi / K in solid cells, K = lam + mu, the plane-strain bulk modulus), so the
+    # block is no longer held at its volume by the mixture's constraint: released unstressed, it
+    # compresses under the water's pressure, backward-Euler, within a few water steps, to
+    # dV / V = p / K with p = rho g (depth of its centre) (measured 0.3064 % against 0.3061 %), and
+    # then feels rho_w g V of its new volume: it sinks slowly (g dV / V, less for its added mass).
+    block = ((0.4, 0.1), (0.6, 0.3))
+    sim, nw = tank_with_block(RHO, block, coupling="mixture", solid_substeps="implicit")
+    steps, t = sim.advance(0.5, land=False)
+    f, st = sim.solid_force(), sim.state()
+    sim.close()
+    lam, mu = 1.0e6 * 0.3 / (1.3 * 0.4), 1.0e6 / 2.6
+    dv = 1.0 - st["vol"][nw:].sum() / 0.04
+    assert dv == pytest.approx(RHO * G * (DEPTH - 0.2) / (lam + mu), rel=0.02)
+    assert f[1] == pytest.approx(RHO * G * 0.04, rel=5e-3) and abs(f[0]) <= 1e-6 * f[1]
+    assert 0.0 < -st["v"][nw:, 1].mean() <= G * dv * t
+    c = np.sqrt(1.0e6 * 0.7 / (1.3 * 0.4) / RHO)
+    assert t / steps >= 10 * 0.5 * H_CELL / c
+
+
+def test_implicit_substeps_need_the_mixture_coupling():
+    # batty's pressure lives in the water's cells only: no cell of it holds the solid's volumetric stress
+    with pytest.raises(CpdiError, match="mixture"):
+        sim, _ = tank_with_block(RHO, ((0.4, 0.1), (0.6, 0.3)), coupling="batty", solid_substeps="implicit")
+        try:
+            sim.advance(0.1)
+        finally:
+            sim.close()
+
+
 def test_batty_neutral_block_released_unstressed_feels_the_buoyancy_on_average():
     # coupling = "batty": the pressure acts on the solid's boundary only, so an elastic block
     # released without stress in resting water is not in equilibrium: the water's load
@@ -643,3 +674,19 @@ def test_coupled_water_step_is_the_advective_limit_of_its_fastest_particle():
     dt = sim.stable_dt()
     sim.close()
     assert dt == pytest.approx(H_CELL / (np.sqrt(2) * 3.0 + np.sqrt(G * H_CELL)), rel=1e-14)
+
+
+@pytest.mark.parametrize("mode", ["auto", "implicit"])
+def test_substeps_leave_a_run_without_deformable_solids_as_it_is(mode):
+    # solid_substeps only concerns deformable solids: a free rigid body (coupled through its boundary
+    # flux, whatever coupling says) runs bit for bit as with "off", and "implicit" is not refused
+    # for the batty coupling such a body implies
+    from harness import cases, paths, runner
+
+    def final(substeps):
+        case = cases.load(paths.CASES / "floating_block.toml",
+                          ['materials.1.model="rigid_body"', "solver.t_end=0.2", "solver.output_every=0.2",
+                           f'solver.solid_substeps="{substeps}"'])
+        return runner.run(case, None, progress=False).final["x"]
+
+    np.testing.assert_array_equal(final(mode), final("off"))

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-CHUNK = 10   # steps a process takes in one turn (about 60 ms at 32k CPDI on one thread)
+CHUNK = 10   # steps a process takes in one turn (a fraction of a second at 32k CPDI on one thread)
 WARM = 10    # untimed steps of each process before the turns (first touch, team choice)
 
 

@@ -1,14 +1,17 @@
 """One floating_block run with the check's own set-up and gates, plus what the subcycling trials
 measured (docs/notes/fsi_subcycling.md).
 
-``.venv/bin/python -m tools.floating_block_probe [--substeps off|auto] [--rho 500] [--cell 0.05]
+``.venv/bin/python -m tools.floating_block_probe [--substeps off|auto|implicit] [--rho 500] [--cell 0.05]
 [--t-end 4.0] [--set key=value ...]``
 
 The case is harness.checks.floating_block's (its `overrides`: the block's density, the water
 bodies around its release position), sampled every series_every as the check does; printed as one
 JSON line: steps, wall seconds, the check's `measures` and its four gates, and, at six equal
 times, the kinetic energy [J], the number of water particles inside the block's bounding box
-(water that ran into the block) and the change of the tank's energy KE + strain + sum m g y [J].
+(water that ran into the block) and the change of the tank's energy KE + strain + sum m g y [J];
+also that change's largest value over every sample, and the same without the volume correction's
+lift of the water (the energy plus the correction's gravity work, diagnostics `correction_work`:
+the correction moves particles without a force, and sinking_block's energy_excess leaves it out).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from harness.checks import floating_block as fb
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--substeps", default="auto", choices=("off", "auto"))
+    ap.add_argument("--substeps", default="auto", choices=("off", "auto", "implicit"))
     ap.add_argument("--rho", type=float, default=500.0, choices=[r for r, _ in fb.RUNS])
     ap.add_argument("--cell", type=float, default=0.05)
     ap.add_argument("--t-end", type=float, default=4.0)
@@ -41,7 +44,7 @@ def main() -> None:
     row = ib[parts.x[ib, 1] < parts.x[ib, 1].min() + 1e-9]
     g = float(np.linalg.norm(case["solver"]["gravity"]))
     e0 = sim.diagnostics()["strain_energy"] + g * float(np.sum(parts.mass * parts.x[:, 1]))
-    rec = {k: [] for k in ("t", "far", "bottom", "tilt", "ke", "ke_block", "strain", "inside", "energy")}
+    rec = {k: [] for k in ("t", "far", "bottom", "tilt", "ke", "ke_block", "strain", "inside", "energy", "flow")}
     t0 = time.perf_counter()
     try:
         for i in range(1, int(round(a.t_end / every)) + 1):
@@ -62,6 +65,7 @@ def main() -> None:
             rec["inside"].append(int(np.sum(np.all((x[~blk] > lo) & (x[~blk] < hi), axis=1))))
             rec["energy"].append(d["kinetic_energy"] + d["strain_energy"]
                                  + g * float(np.sum(parts.mass * x[:, 1])) - e0)
+            rec["flow"].append(rec["energy"][-1] + d["correction_work"])
         steps = int(sim.diagnostics()["steps"])
     finally:
         sim.close()
@@ -80,6 +84,9 @@ def main() -> None:
                       "ke_J": [round(float(o["ke"][j]), 4) for j in at],
                       "water_inside_block": [int(o["inside"][j]) for j in at],
                       "energy_change_J": [round(float(o["energy"][j]), 4) for j in at],
+                      "energy_max_J": round(float(o["energy"].max()), 4),
+                      "energy_less_correction_J": [round(float(o["flow"][j]), 4) for j in at],
+                      "energy_less_correction_max_J": round(float(o["flow"].max()), 4),
                       **{k: float(f"{val:.4g}") for k, val in m.items()},
                       "gates": gates, "passed": all(gates.values())}))
 

@@ -661,7 +661,8 @@ contains
     !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
     !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
     !! incompressible water: 0 off, the coupled step is their acoustic one; 1 auto, their explicit
-    !! steps subcycled inside the water's; docs/fsi_incompressible.md).
+    !! steps subcycled inside the water's; 2 implicit, auto with the solids' volumetric stress implicit in
+    !! the projection; docs/fsi_incompressible.md, docs/notes/fsi_subcycling.md).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -696,7 +697,11 @@ contains
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case ('solid_substeps')
-      call set_flag(s%inc%substeps, 'solid_substeps must be 0 (off) or 1 (auto)')
+      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp) then
+        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off), 1 (auto) or 2 (implicit)')
+      else
+        s%inc%substeps = nint(value, ik)
+      end if
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
                   'cg_tolerance, cg_max_iterations, volume_correction, coupling, pressure_precond or solid_substeps')

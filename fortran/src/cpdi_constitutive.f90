@@ -241,6 +241,17 @@ contains
           cycle
         end if
         smax = max(smax, c)
+        if (s%devonly) then
+          ! implicit substeps (cpdi_step subcycle_solids): the water step's projection carries the
+          ! solid's mean pressure (in the body force aw), its backward-Euler path from p^n (work(1))
+          ! to the projection's p^n+1 (work(2)); the substeps' stress is the full stress plus that
+          ! path's pressure at this time, so they add only the deviator and the stiffness of the
+          ! volume's deviation from the path
+          tr3 = min(max((s%t + s%dt_last - s%sub_t0)/s%sub_dt, 0.0_wp), 1.0_wp)
+          tr3 = p%work(1, ip) + tr3*(p%work(2, ip) - p%work(1, ip))
+          p%sig(1, ip) = sig(1) + tr3
+          p%sig(2, ip) = sig(2) + tr3
+        end if
         if (proj) then   ! the mean stress, for project_mean_stress
           p%work(1, ip) = (sig(1) + sig(2) + sig(4))/3.0_wp
           p%work(2, ip) = p%work(1, ip)

@@ -2,9 +2,9 @@
 module cpdi_core_latency
   !! A benchmark control, not part of a step. Every step's scatters and the next step's
   !! shape phase move cache lines between the cores of the team; on a shared VM the host
-  !! sometimes places two vCPUs where that round trip costs 345 ns instead of 55 ns, and the
-  !! 2-thread speed-up at 32k CPDI then drops from about 2.0 to about 1.8 while busy-loop
-  !! controls still show two full cores (docs/notes/threads.md). `core_round_trip` measures
+  !! sometimes places two vCPUs where that round trip costs several times more, and the
+  !! 2-thread speed-up then drops while busy-loop controls still show two full cores
+  !! (measurements: docs/notes/threads.md). `core_round_trip` measures
   !! that cost directly: two threads bounce one shared integer `iters` times (thread 0
   !! writes an odd value and waits for the next even one, thread 1 answers), and the result
   !! is the wall time of one round trip. make bench counts a speed-up window only where the

@@ -22,7 +22,7 @@ module cpdi_fsi
   use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
   use cpdi_materials, only: material_stresses
   use cpdi_kinematics, only: det2, map_domains
-  use cpdi_incompressible, only: incomp_step, COUPLING_BATTY
+  use cpdi_incompressible, only: incomp_step, incomp_fill_weights, COUPLING_BATTY, SUBSTEPS_IMPLICIT
   use cpdi_sim, only: sim_t
   use cpdi_grid_update, only: impose_rigid
   use cpdi_rigid_body, only: rb_begin, rb_walls, rb_move
@@ -79,6 +79,7 @@ contains
       return
     end if
     call solid_p2g(s, dt)
+    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. associated(s%sub)) call solid_compliance(s)
     call rb_begin(s%inc%rb, s%p, s%opt%gravity, dt)   ! free rigid bodies: state and gravity (cpdi_rigid_body)
     call rb_walls(s%inc%rb, s%g, s%p, dt, .true.)     ! ... and what the walls hold in the pressure solve
     s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
@@ -150,9 +151,12 @@ contains
     real(wp), intent(in) :: dt
     integer(ik) :: ip, a, k
     real(wp) :: mp, wk, gxk, gyk, vol, sig(4), b(2)
-    logical :: rig, batty, vwalls
+    logical :: rig, batty, vwalls, dev
     batty = s%inc%coupling == COUPLING_BATTY
     vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
+    ! solid_substeps = "implicit": the in-plane deviatoric stress only; the mean stress is the
+    ! projection's pressure (solid_compliance, cpdi_incompressible solid_helmholtz)
+    dev = s%inc%substeps == SUBSTEPS_IMPLICIT .and. associated(s%sub)
     associate (g => s%g, p => s%p)
       if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp
@@ -170,6 +174,7 @@ contains
         mp = p%m(ip)
         vol = p%vol(ip)
         sig = p%sig(:, ip)
+        if (dev) sig(1:2) = sig(1:2) - 0.5_wp*(sig(1) + sig(2))
         b = mp*(s%opt%gravity + p%bf(:, ip))
         rig = s%rigid(p%mat(ip))
         do a = 1, shape_count(s%sh, ip)
@@ -216,6 +221,35 @@ contains
       end if
     end associate
   end subroutine solid_p2g
+
+  subroutine solid_compliance(s)
+    !! solid_substeps = "implicit": per pressure cell, the solids' compliance phi / K (inc%cmp) and
+    !! phi p^n / K (inc%cmpp), each particle's volume spread bilinearly over the cell centres as
+    !! the cell fill is (cpdi_incompressible p2g_faces). p^n = -(sxx + syy) / 2, the particle's
+    !! in-plane mean pressure; K = (lam + mu) (1 - ln J) / J, its derivative -J dp/dJ (Hencky in
+    !! plane strain: the in-plane mean Kirchhoff stress is (lam + mu) ln J whatever the shear;
+    !! (lam + mu) is the plane-strain bulk modulus E / (2 (1 + nu) (1 - 2 nu)) = K_3D + mu / 3).
+    type(sim_t), intent(inout) :: s
+    integer(ik) :: ip, i, kc(4)
+    real(wp) :: wc(4), kp, pp, jv, av, c
+    av = 1.0_wp/s%g%h**2
+    s%inc%cmp = 0.0_wp
+    s%inc%cmpp = 0.0_wp
+    associate (p => s%p, mc => s%inc%mc)
+      do ip = 1, p%n
+        if (.not. s%inc%solid(p%mat(ip))) cycle
+        jv = p%jbar(ip)
+        kp = (s%mats(p%mat(ip))%lam + s%mats(p%mat(ip))%mu)*max(1.0_wp - log(jv), 0.1_wp)/jv
+        pp = -0.5_wp*(p%sig(1, ip) + p%sig(2, ip))
+        c = p%vol(ip)*av/kp
+        call incomp_fill_weights(mc, s%g, p%x(:, ip), kc, wc)
+        do i = 1, 4
+          s%inc%cmp(kc(i)) = s%inc%cmp(kc(i)) + wc(i)*c
+          s%inc%cmpp(kc(i)) = s%inc%cmpp(kc(i)) + wc(i)*c*pp
+        end do
+      end do
+    end associate
+  end subroutine solid_compliance
 
   subroutine solid_g2p(s, dt, st)
     !! Solid particles from their nodes: FLIP/PIC blend, positions, velocity gradient (USL),

@@ -40,6 +40,9 @@ module cpdi_incompressible
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
+  integer(ik), parameter, public :: SUBSTEPS_AUTO = 1      !! solid_substeps = "auto"
+  integer(ik), parameter, public :: SUBSTEPS_IMPLICIT = 2  !! solid_substeps = "implicit": auto, the solids'
+                                                           !! volumetric stress implicit in the projection
 
   type, public :: incomp_t
     !! Settings and work storage of the incompressible water model.
@@ -78,11 +81,15 @@ module cpdi_incompressible
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
     ! Deformable solids subcycled inside the water's step (cpdi_step subcycle_solids, cpdi_fsi)
-    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto
+    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto,
+                                              !! 2 implicit
+    ! solid_substeps = "implicit" (cpdi_fsi solid_compliance): per cell, sum of w V_p / (h^2 K_p) over the
+    ! solid particles (cmp) and of w V_p p_p / (h^2 K_p) (cmpp), p_p their in-plane mean pressure at t^n
+    real(wp), allocatable :: cmp(:), cmpp(:)
     logical :: subcycled = .false.            !! this run's solids are subcycled (cpdi_step prepare_solids)
   end type incomp_t
 
-  public :: incomp_prepare, incomp_step, incomp_transfer_cycle
+  public :: incomp_prepare, incomp_step, incomp_transfer_cycle, incomp_pressure_at, incomp_fill_weights
 
 contains
 
@@ -173,12 +180,12 @@ contains
       if (realloc) then
         if (allocated(ic%usm)) deallocate (ic%usm, ic%vsm, ic%uvw, ic%vvw, ic%uvs, ic%vvs, ic%us, ic%vs, ic%umx, &
                                            ic%vmx, ic%nwx, ic%nwy, ic%fillw, ic%wu, ic%wv, ic%phi, ic%iu, ic%iv, &
-                                           ic%sfill, ic%svol)
+                                           ic%sfill, ic%svol, ic%cmp, ic%cmpp)
         allocate (ic%usm(g%nnodes), ic%vsm(g%nnodes), ic%uvw(g%nnodes), ic%vvw(g%nnodes), ic%uvs(g%nnodes), &
                   ic%vvs(g%nnodes), ic%us(g%nnodes), ic%vs(g%nnodes), ic%umx(g%nnodes), ic%vmx(g%nnodes), &
                   ic%nwx(g%nnodes), ic%nwy(g%nnodes), ic%fillw(size(ic%mc%fill)), ic%wu(g%nnodes), ic%wv(g%nnodes), &
                   ic%phi(size(ic%mc%fill)), ic%iu(g%nnodes), ic%iv(g%nnodes), ic%sfill(size(ic%mc%fill)), &
-                  ic%svol(g%nnodes), stat=m)
+                  ic%svol(g%nnodes), ic%cmp(size(ic%mc%fill)), ic%cmpp(size(ic%mc%fill)), stat=m)
         if (m /= 0) then
           call st%set(CPDI_ERR_ALLOC, 'could not allocate the coupling storage; use a larger cell size')
           return
@@ -189,7 +196,7 @@ contains
         ic%usm = 0.0_wp; ic%vsm = 0.0_wp; ic%uvw = 0.0_wp; ic%vvw = 0.0_wp; ic%uvs = 0.0_wp; ic%vvs = 0.0_wp
         ic%us = 0.0_wp; ic%vs = 0.0_wp; ic%umx = 0.0_wp; ic%vmx = 0.0_wp; ic%nwx = 0.0_wp; ic%nwy = 0.0_wp
         ic%fillw = 0.0_wp; ic%wu = 0.0_wp; ic%wv = 0.0_wp; ic%phi = 0.0_wp; ic%iu = 0.0_wp; ic%iv = 0.0_wp
-        ic%sfill = 0.0_wp; ic%svol = 0.0_wp
+        ic%sfill = 0.0_wp; ic%svol = 0.0_wp; ic%cmp = 0.0_wp; ic%cmpp = 0.0_wp
       end if
       call prepare_bodies()
       if (.not. st%ok()) return
@@ -291,8 +298,8 @@ contains
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: dt, gravity(2)
     logical, intent(in) :: apic
-    integer(ik) :: ip, a, k, i0, j0, i, j, n1
-    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), f(2), wx(2), wy(2), av, vp
+    integer(ik) :: ip, a, k, i, j, n1, kc(4)
+    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), wc(4), av, vp
     logical :: solid, batty
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
@@ -339,18 +346,11 @@ contains
         j = int(s(2)) + 1
         if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2) .and. &
             .not. (solid .and. batty)) mc%cell(i + (j - 1)*n1) = CELL_FLUID
-        f = s - 0.5_wp
-        i0 = int(floor(f(1))) + 1
-        j0 = int(floor(f(2))) + 1
-        f = f - floor(f)
-        wx = [1.0_wp - f(1), f(1)]
-        wy = [1.0_wp - f(2), f(2)]
-        do j = 0, 1
-          do i = 0, 1
-            k = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*n1
-            mc%fill(k) = mc%fill(k) + wx(i + 1)*wy(j + 1)*vp*av
-            if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wx(i + 1)*wy(j + 1)*vp*av
-          end do
+        call incomp_fill_weights(mc, g, p%x(:, ip), kc, wc)
+        do a = 1, 4
+          k = kc(a)
+          mc%fill(k) = mc%fill(k) + wc(a)*vp*av
+          if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wc(a)*vp*av
         end do
       end do
       ! a cell without a particle centre inside the water is still water: the particles'
@@ -559,6 +559,7 @@ contains
         call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
+        if (ic%coupled .and. ic%substeps == SUBSTEPS_IMPLICIT) call solid_helmholtz(ic, dt)
       end if
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
@@ -600,6 +601,34 @@ contains
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
     call toc(timers, 4, t0)
   end subroutine incomp_step
+
+  subroutine solid_helmholtz(ic, dt)
+    !! solid_substeps = "implicit": the solids' volumetric stress inside the projection (after
+    !! Stomakhin et al. 2014, their pressure equation for a compressible phase). A cell of solid
+    !! volume fraction phi changes its volume at the solid's rate, div v = -phi (p - p^n) / (K dt)
+    !! (backward Euler of dp = -K dJ / J, K the solid's in-plane bulk stiffness, p^n its in-plane
+    !! mean pressure at t^n); with v = v* - (dt / rho) a grad p that is
+    !!   A p + (rho h^2 / dt^2) (phi / K) p = (rho h^2 / dt) (-div v*) + (rho h^2 / dt^2) (phi / K) p^n,
+    !! a positive term on A's diagonal (A stays symmetric positive definite). cmp = phi / K and
+    !! cmpp = phi p^n / K per cell come from cpdi_fsi (solid_compliance). The pressure in a solid
+    !! cell is then the solid's volumetric stress at t^n+1; the predictor carried only its
+    !! deviatoric stress (cpdi_fsi solid_p2g), and so do the substeps (cpdi_step, sim_t%devonly).
+    type(incomp_t), intent(inout) :: ic
+    real(wp), intent(in) :: dt
+    integer(ik) :: i, j, c, n1
+    real(wp) :: scale
+    n1 = ic%mc%nn(1)
+    scale = ic%rho*ic%mc%h**2/dt**2
+    do j = ic%mc%lo(2), ic%mc%hi(2)
+      do i = ic%mc%lo(1), ic%mc%hi(1)
+        c = i + (j - 1)*n1
+        if (ic%mc%cell(c) /= CELL_FLUID) cycle
+        if (ic%cmp(c) <= 0.0_wp) cycle
+        ic%mc%adiag(c) = ic%mc%adiag(c) + scale*ic%cmp(c)
+        ic%mc%b(c) = ic%mc%b(c) + scale*ic%cmpp(c)
+      end do
+    end do
+  end subroutine solid_helmholtz
 
   subroutine solid_to_faces(ic, nm, nvx, nvy, mtol)
     !! The single continuum: on every face the solid reaches, its mass (us from the nodal
@@ -993,6 +1022,53 @@ contains
     diag(18) = diag(18) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
+
+  pure subroutine incomp_fill_weights(mc, g, x, k, w)
+    !! The four cells a particle at x spreads its volume over (the cell fill: bilinear over the
+    !! cell centres, indices clamped to the physical cells, a wall mirroring the water beyond it)
+    !! and their weights.
+    type(mac_t), intent(in) :: mc
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: x(2)
+    integer(ik), intent(out) :: k(4)
+    real(wp), intent(out) :: w(4)
+    integer(ik) :: i0, j0, i, j
+    real(wp) :: f(2), wx(2), wy(2)
+    f = (x - g%gorig)/g%h - 0.5_wp
+    i0 = int(floor(f(1))) + 1
+    j0 = int(floor(f(2))) + 1
+    f = f - floor(f)
+    wx = [1.0_wp - f(1), f(1)]
+    wy = [1.0_wp - f(2), f(2)]
+    do j = 0, 1
+      do i = 0, 1
+        k(1 + i + 2*j) = min(max(i0 + i, mc%lo(1)), mc%hi(1)) + (min(max(j0 + j, mc%lo(2)), mc%hi(2)) - 1)*mc%nn(1)
+        w(1 + i + 2*j) = wx(i + 1)*wy(j + 1)
+      end do
+    end do
+  end subroutine incomp_fill_weights
+
+  real(wp) function incomp_pressure_at(ic, g, x) result(pp)
+    !! The last projection's pressure (with its ghost values, pe) at x, interpolated as a water
+    !! particle's is (g2p_faces).
+    type(incomp_t), intent(in) :: ic
+    type(grid_t), intent(in) :: g
+    real(wp), intent(in) :: x(2)
+    integer(ik) :: i0, j0, i, j, ix(2), jy(2)
+    real(wp) :: s(2), wx(2), wy(2)
+    s = (x - g%gorig)/g%h - 0.5_wp
+    i0 = int(floor(s(1))) + 1
+    j0 = int(floor(s(2))) + 1
+    s = s - floor(s)
+    call edge_weights(i0, s(1), ic%mc%lo(1), ic%mc%hi(1), ix, wx)
+    call edge_weights(j0, s(2), ic%mc%lo(2), ic%mc%hi(2), jy, wy)
+    pp = 0.0_wp
+    do j = 1, 2
+      do i = 1, 2
+        pp = pp + wx(i)*wy(j)*ic%mc%pe(ix(i) + (jy(j) - 1)*ic%mc%nn(1))
+      end do
+    end do
+  end function incomp_pressure_at
 
   pure subroutine edge_weights(i0, f, lo, hi, idx, w)
     !! Linear interpolation between cell centres i0 and i0 + 1 at fraction f along one axis,

@@ -12,11 +12,10 @@ module cpdi_schedule
   !!   finished its own takes the remaining blocks of the others from their far end. Each
   !!   block is claimed once, by an atomic swap of its ticket (64 per loop, not per particle).
   !!   Owning keeps a block's particle data in the same core's cache from phase to phase
-  !!   (on the 2-core VM, 32k CPDI: 2.84 ms a step against 3.24 ms with `schedule(dynamic, 1)`,
-  !!   which hands blocks to whichever thread comes first); stealing keeps what dynamic
-  !!   gave: a thread on a slowed core (a vCPU shared with other work) does fewer blocks
-  !!   instead of holding the other at every barrier (a plain static schedule measured
-  !!   1.40-1.48x on 2 threads at 7b597bd for that reason).
+  !!   (faster than `schedule(dynamic, 1)`, which hands blocks to whichever thread comes
+  !!   first); stealing keeps what dynamic gave: a thread on a slowed core (a vCPU shared
+  !!   with other work) does fewer blocks instead of holding the other at every barrier, as a
+  !!   plain static schedule would (measurements: docs/notes/threads.md).
   !! * **Strips** (scatters to the grid). Particles are binned by the lowest node row of
   !!   their stencil into horizontal strips `width` node rows high, with width at least
   !!   the tallest stencil's span (last minus first row). Two strips of the same parity then touch disjoint nodes,
@@ -29,13 +28,12 @@ module cpdi_schedule
   !!   particles numbered row by row a thread scatters mostly the particles whose blocks it
   !!   owns, and their shape functions stay in its core's cache. With `schedule(dynamic, 1)`
   !!   about half of them were read by the other core every step, and its next shape phase
-  !!   had to take those cache lines back: at 32k CPDI the 2-thread step lost its speed-up
-  !!   (2T/1T 1.15 instead of 2.0) whenever the host put the two vCPUs where a cache-line
-  !!   round trip takes 345 ns instead of 55 ns (docs/notes/threads.md).
+  !!   had to take those cache lines back: the 2-thread step lost its speed-up whenever the
+  !!   host put the two cores far apart (docs/notes/threads.md).
   !!
   !! The binning is a stable counting sort, O(n), with storage sized once. Horizontal
   !! strips keep particles seeded row by row (and nodes, numbered row by row) contiguous in
-  !! memory within a strip; vertical strips measured 4x slower P2G from lost locality.
+  !! memory within a strip; vertical strips lose that locality (docs/notes/threads.md).
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC

@@ -31,8 +31,8 @@ module cpdi_sim
   !! on the volume correction's displacements (not in 8: the correction is no flow)
   integer(ik), parameter, public :: MIN_PER_THREAD = 16384
   !! particles per thread below which a step uses fewer threads: a step has about 20
-  !! barriers, and on the 2-core VM 8k CPDI particles ran 1.4x slower on 2 threads than on 1
-  !! (passive waits, docs/notes/threads.md) while 32k ran faster. Results do not depend on it.
+  !! barriers, and a small step on 2 threads can run slower than on 1 (passive waits;
+  !! measurements: docs/notes/threads.md). Results do not depend on it.
   !! The environment variable CPDI_MIN_PER_THREAD (read by sim_prepare) replaces it; the
   !! tests set it to 1 so that their small cases really run on several threads.
   integer(ik), parameter, public :: PROBE_MIN = 32    !! steps between probes of the slower team ...
@@ -79,6 +79,10 @@ module cpdi_sim
     logical :: contact = .false.             !! multi-velocity-field contact between bodies
     real(wp) :: friction = 0.0_wp            !! Coulomb coefficient of contact
     real(wp) :: fullness = 0.9_wp            !! contact needs sum_b V_i^b >= fullness h^2 at the node
+    logical :: devonly = .false.             !! the in-plane deviatoric stress only in the nodal forces (the
+                                             !! substeps of solid_substeps = "implicit": the volumetric part is
+                                             !! the water step's projection pressure, in the body force aw)
+    real(wp) :: sub_t0 = 0.0_wp, sub_dt = 1.0_wp  !! devonly: the water step the substeps run in
     real(wp) :: dt_last = 0.0_wp
     type(shape_t) :: sh
     type(projection_t) :: proj

@@ -33,7 +33,7 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, SUBSTEPS_IMPLICIT, incomp_pressure_at
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
@@ -223,7 +223,12 @@ contains
     if (any(s%rigid(s%p%mat))) return
     keep = s%inc%solid(s%p%mat)
     n = count(keep)
-    if (n == 0) return
+    if (n == 0) return   ! no deformable solid (water alone, or free rigid bodies): nothing to subcycle
+    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling /= 0) then
+      call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
+                  'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
+      return
+    end if
     allocate (s%sub)
     allocate (s%isub(n), s%xw(2, n))
     k = 0
@@ -248,11 +253,12 @@ contains
       u%p%vol0 = s%p%vol0(s%isub)
       u%p%r0 = s%p%r0(:, s%isub)
       u%p%mat = s%p%mat(s%isub)
-      call to_sub(s)
+      call to_sub(s, 1.0_wp)
       u%has_particles = .true.
       allocate (u%body(n))
       u%body = 1
       u%contact = .true.   ! one field: the walls' volume constraint only (nothing to contact)
+      u%devonly = s%inc%substeps == SUBSTEPS_IMPLICIT   ! the volumetric stress is the projection's
       u%fullness = s%fullness
       u%opt = s%opt
       u%opt%fluid = 0
@@ -280,21 +286,35 @@ contains
     if (allocated(s%xw)) deallocate (s%xw)
   end subroutine sim_release
 
-  subroutine to_sub(s)
+  subroutine to_sub(s, dt)
     !! The solids' state into their own simulation; their body force with the water's (aw) of
-    !! this water step's projection.
+    !! this water step's projection (of length dt).
     type(sim_t), intent(inout) :: s
+    real(wp), intent(in) :: dt
+    integer(ik) :: k
     associate (u => s%sub, i => s%isub)
       u%p%x = s%p%x(:, i)
       u%p%v = s%p%v(:, i)
       u%p%F = s%p%F(:, i)
       u%p%L = s%p%L(:, i)
       u%p%sig = s%p%sig(:, i)
+      if (u%devonly) then
+        ! the in-plane deviator (the projection's pressure is the mean stress); the path of the
+        ! mean pressure the projection carries, p^n (work(1)) to its p^n+1 (work(2); cpdi_constitutive)
+        u%p%work(1, :) = -0.5_wp*(s%p%sig(1, i) + s%p%sig(2, i))
+        u%p%sig(1, :) = s%p%sig(1, i) + u%p%work(1, :)
+        u%p%sig(2, :) = s%p%sig(2, i) + u%p%work(1, :)
+        do k = 1, size(i)
+          u%p%work(2, k) = incomp_pressure_at(s%inc, s%g, s%p%x(:, i(k)))
+        end do
+        u%sub_t0 = s%t
+      end if
       u%p%r = s%p%r(:, i)
       u%p%vol = s%p%vol(i)
       u%p%psi = s%p%psi(i)
       u%p%jbar = s%p%jbar(i)
       u%p%bf = s%p%bf(:, i) + s%p%aw(:, i)
+      u%sub_dt = dt
     end associate
   end subroutine to_sub
 
@@ -308,7 +328,7 @@ contains
     real(wp) :: tend
     integer(ik) :: k, code
     character(len=600) :: buf
-    call to_sub(s)
+    call to_sub(s, dt)
     associate (u => s%sub, i => s%isub)
       s%xw = u%p%x
       u%t = s%t
@@ -524,10 +544,10 @@ contains
     !! both team sizes (an average over the last steps), the faster one runs, and a step now
     !! and then runs on the other to keep its time current: PROBE_MIN steps after the faster
     !! team changed, and each probe that confirms the choice doubles the gap, up to PROBE_MAX (probe_cap)
-    !! (a probe costs a slow step: on the idle 2-core VM a 1-thread probe every 32 steps cost
-    !! ~1.5-3 %). Beside a busy process a waiting thread's spin holds a core its partner needs,
-    !! and 2 threads can take twice as long as 1; on an idle machine they take 0.5-0.65 of it
-    !! (docs/notes/threads.md). Results do not depend on the team (bitwise, cpdi_schedule).
+    !! (a probe costs a slow step). Beside a busy process a waiting thread's spin holds a core
+    !! its partner needs, and 2 threads can take longer than 1; on an idle machine they are
+    !! faster (measurements: docs/notes/threads.md). Results do not depend on the team (bitwise,
+    !! cpdi_schedule).
     type(sim_t), intent(inout) :: s
     integer, intent(in) :: nthr
     team = 0

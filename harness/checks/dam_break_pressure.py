@@ -59,8 +59,8 @@ TSTAR = math.sqrt(G / H)
 SENSORS = {"3": 0.03, "4": 0.08}
 DIAMETER = 0.0042
 KERNEL_SPACINGS = 8.0   # the references' sensor support: 8 initial particle spacings
-# h = H/N. H/120 (the issue's third level) is not run: about 18 min on one core, beyond the verify
-# budget; unmeasured (docs/notes/dam_break_pressure_sensor4.md)
+# h = H/N. H/120 (the issue's third level) is not run: beyond the verify budget (its cost:
+# docs/notes/dam_break_pressure_sensor4.md); unmeasured
 LEVELS_FULL = (30, 60)
 LEVELS_QUICK = (20, 30)
 MULTIGRID_FROM = 60   # N >= this: the multigrid preconditioner (CG iterations about constant in h)

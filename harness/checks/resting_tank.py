@@ -29,69 +29,89 @@ WC_SETTINGS = ['solver.fluid="weakly_compressible"', 'solver.projection="cell"',
                "solver.flip=0.999", "solver.cfl=0.4"]
 
 
-def measures(r: runner.RunResult, case) -> dict:
-    """KE history and the final state's measures of one run."""
+def measures(r: runner.RunResult, case, slope: float = 0.0) -> dict:
+    """KE history and the final state's measures of one run. slope: the free surface's slope at
+    rest, b_x / g under a body acceleration b (accelerated_tank); the surface at rest is then
+    y_s(x) = H + slope (x - L / 2) and the pressure rho g (y_s(x) - y)."""
     g = case["grid"]
     h = g["cell"]
     ncell = (round(g["size"][0] / h), round(g["size"][1] / h))
+    xc = g["origin"][0] + 0.5 * g["size"][0]
     x0, f = r.parts.x, r.final
     mass = float(np.sum(r.parts.mass))
     ke = r.series["kinetic_energy"] / (mass * G * H)
     p = -(f["sigma"][:, 0] + f["sigma"][:, 1] + f["sigma"][:, 3]) / 3.0
-    exact = RHO * G * (H - f["x"][:, 1])
-    return {
-        "t": r.series["t"], "ke": ke, "p": p, "y": f["x"][:, 1],
+    exact = RHO * G * (H + slope * (f["x"][:, 0] - xc) - f["x"][:, 1])
+    cols_x, tops = water.surface_columns(f["x"], f["r"], 0.0, g["size"][0])
+    out = {
+        "t": r.series["t"], "ke": ke, "p": p, "y": f["x"][:, 1], "exact": exact,
         "ke_max": float(ke.max()),
         "pressure_rel_l2": float(np.linalg.norm(p - exact) / np.linalg.norm(exact)),
-        "surface_drift": abs(water.surface_height(f["x"], f["r"], 0.0, g["size"][0]) - H) / H,
+        "surface_drift": abs(float(np.mean(tops)) - H - slope * (float(np.mean(cols_x)) - xc)) / H,
         "volume_change": abs(water.volume_change(f["x"], f["vol"], g["origin"], h, ncell)),
         "max_displacement_h": float(np.max(np.linalg.norm(f["x"] - x0, axis=1)) / h),
         "pressure_noise_kpa": float(np.std(p - exact) / 1e3),
         "steps": r.summary["steps"], "wall_s": r.summary["wall_s"],
     }
+    if slope:
+        out["slope_rel_error"] = abs(float(np.polyfit(cols_x, tops, 1)[0]) - slope) / abs(slope)
+    return out
 
 
 def run(ctx: CheckContext) -> CheckResult:
-    res = CheckResult(NAME, REQUIREMENT)
-    case = cases.load(CASE)
-    inc = measures(runner.run(case, ctx.runs_dir / "incompressible", progress=ctx.progress), case)
+    return run_tank(ctx, NAME, REQUIREMENT, CASE)
+
+
+def run_tank(ctx: CheckContext, name: str, requirement: str, case_path, slope: float = 0.0,
+             gates: tuple[tuple[str, float, str], ...] = ()) -> CheckResult:
+    """Water at rest in a tank, incompressible (gated) and weakly compressible (reported): the
+    resting_tank check, and, with the surface's slope at rest and extra gates (metric, bound,
+    note), the accelerated_tank check."""
+    res = CheckResult(name, requirement)
+    case = cases.load(case_path)
+    inc = measures(runner.run(case, ctx.runs_dir / "incompressible", progress=ctx.progress), case, slope)
     t_wc = 3.0 if ctx.quick else 10.0
-    wc_case = cases.load(CASE, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
-    wc = measures(runner.run(wc_case, ctx.runs_dir / "weakly_compressible", progress=ctx.progress), wc_case)
-    for key in ("ke_max", "pressure_rel_l2", "surface_drift", "volume_change", "max_displacement_h",
-                "pressure_noise_kpa"):
+    wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
+    wc = measures(runner.run(wc_case, ctx.runs_dir / "weakly_compressible", progress=ctx.progress), wc_case, slope)
+    keys = ("ke_max", "pressure_rel_l2", "surface_drift", "volume_change", "max_displacement_h",
+            "pressure_noise_kpa") + tuple(k for k, _, _ in gates)
+    for key in keys:
         res.metrics[key] = inc[key]
         res.metrics[f"wc_{key}"] = wc[key]
     res.metrics["steps"] = float(inc["steps"])
     res.metrics["wc_steps"] = float(wc["steps"])
+    surface = "H" if not slope else "the surface at rest"
     res.gates += [
         Gate.at_most("ke_max", inc["ke_max"], 1e-5, "KE / (M g H) at every series sample"),
-        Gate.at_most("pressure_rel_l2", inc["pressure_rel_l2"], 0.01, "particle pressure vs rho g (H - y)"),
-        Gate.at_most("surface_drift", inc["surface_drift"], 0.001, "mean free surface vs H"),
+        Gate.at_most("pressure_rel_l2", inc["pressure_rel_l2"], 0.01,
+                     "particle pressure vs rho g (H - y)" if not slope else "particle pressure vs rho g (y_s(x) - y)"),
+        Gate.at_most("surface_drift", inc["surface_drift"], 0.001, f"mean free surface vs {surface}"),
         Gate.at_most("volume_change", inc["volume_change"], 0.005, "overfilled-cell volume / water volume"),
         Gate.at_most("max_displacement_h", inc["max_displacement_h"], 0.1, "largest particle displacement / h"),
-    ]
-    plots.time_series(ctx.fig_dir / "resting_tank_energy.png", inc["t"],
+    ] + [Gate.at_most(k, inc[k], bound, note) for k, bound, note in gates]
+    plots.time_series(ctx.fig_dir / f"{name}_energy.png", inc["t"],
                       {"incompressible": np.maximum(inc["ke"], 1e-20),
                        "weakly compressible, sinking_block settings": (wc["t"], np.maximum(wc["ke"], 1e-20))},
-                      xlabel="t [s]", ylabel="KE / (M g H)", title="Resting tank: kinetic energy (no damping)",
+                      xlabel="t [s]", ylabel="KE / (M g H)", title=f"{name}: kinetic energy (no damping)",
                       annotate=f"max KE/(MgH): incompressible {inc['ke_max']:.1e}, weakly compressible "
                                f"{wc['ke_max']:.1e}", logy=True)
-    yy = np.linspace(0.0, H, 2)
-    plots.time_series(ctx.fig_dir / "resting_tank_pressure.png", inc["p"] / 1e3,
-                      {}, exact=(RHO * G * (H - yy) / 1e3, yy), exact_label="rho g (H - y)",
-                      points={"weakly compressible (particles)": (wc["p"] / 1e3, wc["y"]),
-                              "incompressible (particles, drawn over)": (inc["p"] / 1e3, inc["y"])},
-                      xlabel="pressure [kPa]", ylabel="y [m]", title="Pressure at the end (particles)",
+    dd = np.linspace(0.0, H + abs(slope) * 0.5 * case["grid"]["size"][0], 2)
+    plots.time_series(ctx.fig_dir / f"{name}_pressure.png", RHO * G * dd / 1e3,
+                      {}, exact=(RHO * G * dd / 1e3, dd), exact_label="rho g d",
+                      points={"weakly compressible (particles)": (wc["p"] / 1e3, wc["exact"] / (RHO * G)),
+                              "incompressible (particles, drawn over)": (inc["p"] / 1e3, inc["exact"] / (RHO * G))},
+                      xlabel="pressure [kPa]", ylabel="depth below the surface at rest, d [m]",
+                      title="Pressure at the end (particles)",
                       annotate=f"rel. L2 error: incompressible {inc['pressure_rel_l2']:.1e}, "
                                f"weakly compressible {wc['pressure_rel_l2']:.1e}")
-    res.figures += ["resting_tank_energy.png", "resting_tank_pressure.png"]
+    res.figures += [f"{name}_energy.png", f"{name}_pressure.png"]
+    extra = "".join(f" {k} |" for k, _, _ in gates)
     res.tables.append(
         "| water model | steps | max KE/(MgH) | pressure rel. L2 | noise [kPa] | surface drift / H | "
-        "volume change | max displacement / h |\n|---|---|---|---|---|---|---|---|\n"
-        + "\n".join(f"| {name} | {m['steps']} | {m['ke_max']:.2e} | {m['pressure_rel_l2']:.2e} | "
+        f"volume change | max displacement / h |{extra}\n|---|---|---|---|---|---|---|---|{'---|' * len(gates)}\n"
+        + "\n".join(f"| {label} | {m['steps']} | {m['ke_max']:.2e} | {m['pressure_rel_l2']:.2e} | "
                     f"{m['pressure_noise_kpa']:.3g} | {m['surface_drift']:.2e} | {m['volume_change']:.2e} | "
-                    f"{m['max_displacement_h']:.2e} |"
-                    for name, m in (("incompressible (gated), 10 s", inc),
-                                    (f"weakly compressible, sinking_block settings, {t_wc:g} s", wc))))
+                    f"{m['max_displacement_h']:.2e} |" + "".join(f" {m[k]:.2e} |" for k, _, _ in gates)
+                    for label, m in (("incompressible (gated), 10 s", inc),
+                                     (f"weakly compressible, sinking_block settings, {t_wc:g} s", wc))))
     return res

@@ -1,7 +1,8 @@
 """Check `sinking_block`: the seed paper's section 3.2, a 0.3 m block (rho = 1100) dropped
 from 0.1 m above the free surface into a tank 2.5 m wide with 3 m walls (water depth 1.2 m,
-chosen: the seed does not give it), with the incompressible water and coupling = "batty" (slip;
-docs/fsi_incompressible.md); the block falls freely until it reaches the water.
+chosen: the seed does not give it), with the incompressible water and the default coupling (one
+continuum, the block subcycled at the water's pace with its volumetric stress implicit in the
+projection; docs/fsi_incompressible.md); the block falls freely until it reaches the water.
 
 Six runs, the same six gates on each (issue 21: a pass that depends on the sampling is not a
 pass): the case at h = 0.05 m, cfl 0.4, sampled every 2 ms (the base run), then one change each:
@@ -79,7 +80,7 @@ RUNS = {"_h0025": (("grid.cell=0.025",), "h = 0.025"),
         "_cfl05": (("solver.cfl=0.5",), "cfl 0.5"),
         "_series10ms": (("solver.series_every=0.01",), "series every 10 ms"),
         "_series5ms": (("solver.series_every=0.005",), "series every 5 ms")}
-QUICK = ("", "_rigid")  # the quick tier (CI): the base runs only (the Hencky h = 0.025 run alone is ~17 min)
+QUICK = ("", "_rigid")  # the quick tier (CI): the base runs only (the Hencky h = 0.025 run is the longest)
 RIGID = "materials.1.model=rigid_body"   # the block as a free rigid body
 RUNS.update({f"{k}_rigid": ((*x, RIGID), f"{label}, rigid body") for k, (x, label) in list(RUNS.items())})
 
