@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from harness.solver import Simulation
+from harness.solver import FULL_STATE_ROWS, FULL_STATE_SCALARS, Simulation
 
 # A step uses fewer threads than asked for below 16384 particles per thread (cpdi_step
 # MIN_PER_THREAD); the tests' cases are small, and the determinism tests must really run on
@@ -41,3 +41,15 @@ def make_sim(parts, *, ncell, h, origin=(0.0, 0.0), walls=("open",) * 4, materia
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261121)
+
+
+def named(full):
+    """Full state split into named arrays (rows of FULL_STATE_ROWS, then the scalars)."""
+    out, i = {}, 0
+    for name, width in FULL_STATE_ROWS:
+        out[name] = full["particles"][i:i + width]
+        i += width
+    assert i == full["particles"].shape[0], "FULL_STATE_ROWS does not cover the solver's rows"
+    assert len(FULL_STATE_SCALARS) == full["scalars"].size, "FULL_STATE_SCALARS does not match the solver"
+    out.update({k: full["scalars"][j] for j, k in enumerate(FULL_STATE_SCALARS) if not k.startswith("timer.")})
+    return out

@@ -16,7 +16,7 @@ import pytest
 
 from harness import cases, paths, runner
 from harness.cases import CaseError
-from harness.solver import FULL_STATE_ROWS
+from tests.conftest import named
 
 TANK = paths.CASES / "resting_tank.toml"
 B = (1.962, 0.0)
@@ -27,14 +27,8 @@ def test_the_case_key_is_checked_and_reaches_every_particle():
         cases.load(TANK, ['solver.body_acceleration="sideways"'])
     case = cases.load(TANK, [f"solver.body_acceleration=[{B[0]},{B[1]}]"])
     sim, parts = runner.build(case)
-    rows = sim.get_full_state()["particles"]
+    bf = named(sim.get_full_state())["body_force"].T
     sim.close()
-    first = 0
-    for name, n in FULL_STATE_ROWS:
-        if name == "body_force":
-            break
-        first += n
-    bf = rows[first:first + 2, :].T
     assert bf.shape == (parts.x.shape[0], 2)
     np.testing.assert_array_equal(bf, np.tile(B, (parts.x.shape[0], 1)))
     assert cases.load(TANK)["solver"]["body_acceleration"] == [0.0, 0.0]

@@ -19,6 +19,7 @@ from harness import checkpoint, cli, runner
 from harness.cases import load
 from harness.output import read_series
 from harness.solver import FULL_STATE_ROWS, FULL_STATE_SCALARS, CpdiError
+from tests.conftest import named
 
 REPO = Path(__file__).resolve().parent.parent
 WATER = REPO / "cases" / "water_column.toml"
@@ -34,17 +35,6 @@ TINY = ["grid.cell=0.0146", "solver.t_end=0.02", "solver.output_every=0.01"]
 # summary entries that depend on the wall clock or on where the outputs live
 WALL = {"wall_s", "particle_updates_per_s", "timers", "checkpoint", "restarted_from"}
 
-
-def named(full):
-    """Full state split into named arrays (rows of FULL_STATE_ROWS, then the scalars)."""
-    out, i = {}, 0
-    for name, width in FULL_STATE_ROWS:
-        out[name] = full["particles"][i:i + width]
-        i += width
-    assert i == full["particles"].shape[0], "FULL_STATE_ROWS does not cover the solver's rows"
-    assert len(FULL_STATE_SCALARS) == full["scalars"].size, "FULL_STATE_SCALARS does not match the solver"
-    out.update({k: full["scalars"][j] for j, k in enumerate(FULL_STATE_SCALARS) if not k.startswith("timer.")})
-    return out
 
 
 def assert_same_bits(a, b, what=""):

@@ -33,7 +33,8 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, SUBSTEPS_IMPLICIT, incomp_pressure_at
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, SUBSTEPS_IMPLICIT, incomp_pressure_at, &
+                                 COUPLING_BATTY
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
@@ -224,7 +225,7 @@ contains
     keep = s%inc%solid(s%p%mat)
     n = count(keep)
     if (n == 0) return   ! no deformable solid (water alone, or free rigid bodies): nothing to subcycle
-    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling /= 0) then
+    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling == COUPLING_BATTY) then
       call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
                   'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
       return

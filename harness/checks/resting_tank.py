@@ -29,10 +29,18 @@ WC_SETTINGS = ['solver.fluid="weakly_compressible"', 'solver.projection="cell"',
                "solver.flip=0.999", "solver.cfl=0.4"]
 
 
-def measures(r: runner.RunResult, case, slope: float = 0.0) -> dict:
-    """KE history and the final state's measures of one run. slope: the free surface's slope at
-    rest, b_x / g under a body acceleration b (accelerated_tank); the surface at rest is then
-    y_s(x) = H + slope (x - L / 2) and the pressure rho g (y_s(x) - y)."""
+def surface_slope(case) -> float:
+    """The free surface's slope at rest, b_x / g, under the case's body acceleration b and gravity
+    (0 without a body acceleration)."""
+    s = case["solver"]
+    return s["body_acceleration"][0] / -s["gravity"][1]
+
+
+def measures(r: runner.RunResult, case) -> dict:
+    """KE history and the final state's measures of one run. The surface at rest is
+    y_s(x) = H + slope (x - L / 2) (slope: surface_slope, accelerated_tank) and the pressure
+    rho g (y_s(x) - y)."""
+    slope = surface_slope(case)
     g = case["grid"]
     h = g["cell"]
     ncell = (round(g["size"][0] / h), round(g["size"][1] / h))
@@ -62,17 +70,18 @@ def run(ctx: CheckContext) -> CheckResult:
     return run_tank(ctx, NAME, REQUIREMENT, CASE)
 
 
-def run_tank(ctx: CheckContext, name: str, requirement: str, case_path, slope: float = 0.0,
+def run_tank(ctx: CheckContext, name: str, requirement: str, case_path,
              gates: tuple[tuple[str, float, str], ...] = ()) -> CheckResult:
     """Water at rest in a tank, incompressible (gated) and weakly compressible (reported): the
-    resting_tank check, and, with the surface's slope at rest and extra gates (metric, bound,
+    resting_tank check, and, with a body acceleration in the case and extra gates (metric, bound,
     note), the accelerated_tank check."""
     res = CheckResult(name, requirement)
     case = cases.load(case_path)
-    inc = measures(runner.run(case, ctx.runs_dir / "incompressible", progress=ctx.progress), case, slope)
+    slope = surface_slope(case)
+    inc = measures(runner.run(case, ctx.runs_dir / "incompressible", progress=ctx.progress), case)
     t_wc = 3.0 if ctx.quick else 10.0
     wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
-    wc = measures(runner.run(wc_case, ctx.runs_dir / "weakly_compressible", progress=ctx.progress), wc_case, slope)
+    wc = measures(runner.run(wc_case, ctx.runs_dir / "weakly_compressible", progress=ctx.progress), wc_case)
     keys = ("ke_max", "pressure_rel_l2", "surface_drift", "volume_change", "max_displacement_h",
             "pressure_noise_kpa") + tuple(k for k, _, _ in gates)
     for key in keys:
