@@ -65,6 +65,20 @@ def _subcycled(substeps: str = "auto") -> dict:
     }
 
 
+def _anchored() -> dict:
+    """A Hencky plate clamped by a prescribed rigid anchor (moving, so that the substeps move it)
+    and struck by a collapsing water column, subcycled ("implicit"): the anchor's particles are in
+    the substeps' simulation (cpdi_step prepare_solids), its nodes hold the plate there."""
+    d = _subcycled("implicit")
+    d["grid"]["cell"] = 0.025
+    d["materials"] += [{"name": "anchor", "model": "rigid", "density": 2500.0, "velocity": [0.02, 0.0]}]
+    d["materials"][1]["density"] = 2500.0
+    d["bodies"] = [{"material": "water", "geometry": {"type": "rectangle", "min": [0.0, 0.0], "max": [0.3, 0.5]}},
+                   {"material": "block", "geometry": {"type": "rectangle", "min": [0.5, 0.05], "max": [0.55, 0.3]}},
+                   {"material": "anchor", "geometry": {"type": "rectangle", "min": [0.5, 0.0], "max": [0.55, 0.05]}}]
+    return d
+
+
 CASES = {
     "cpdi-cell": _dam_break("cpdi", "cell"),
     "cpdi-nodal": _dam_break("cpdi", "nodal"),
@@ -74,6 +88,7 @@ CASES = {
     "cpdi-pool": _stretched(),
     "fsi-subcycled": _subcycled(),
     "fsi-implicit": _subcycled("implicit"),
+    "fsi-anchored": _anchored(),
 }
 
 

@@ -279,8 +279,9 @@ contains
         xo = p%x(:, ip)
         if (s%rigid(p%mat(ip))) then
           p%v(:, ip) = s%mats(p%mat(ip))%vel
-          p%x(:, ip) = xo + dt*p%v(:, ip)
           p%L(:, ip) = 0.0_wp
+          if (sub) cycle   ! subcycled: the substeps move the rigid particles (cpdi_step prepare_solids)
+          p%x(:, ip) = xo + dt*p%v(:, ip)
         else
           vn = 0.0_wp
           dv = 0.0_wp
@@ -374,6 +375,7 @@ contains
     do ip = 1, min(size(s%mats), size(s%rigid))
       if (s%rigid(ip)) cs = max(cs, sqrt(2.0_wp)*maxval(abs(s%mats(ip)%vel)))
     end do
+    ca = cs   ! the substeps carry the prescribed rigid bodies too (cpdi_step prepare_solids)
     associate (p => s%p)
       do ip = 1, p%n
         if (s%fluid(p%mat(ip)) .or. s%rigid(p%mat(ip)) .or. s%inc%free(p%mat(ip))) cycle

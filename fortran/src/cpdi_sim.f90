@@ -115,6 +115,7 @@ module cpdi_sim
     ! particles alone on the same grid, inside each water step (cpdi_step subcycle_solids).
     type(sim_t), pointer :: sub => null()     !! the solids' own simulation (null: none)
     integer(ik), allocatable :: isub(:)       !! per particle of sub: its index here
+    integer(ik) :: nsub = 0                   !! sub's deformable particles, isub(1:nsub); prescribed rigid ones follow
     real(wp), allocatable :: xw(:, :)         !! sub's positions at the start of the water step (2, n of sub)
   end type sim_t
 

@@ -211,20 +211,26 @@ contains
     !! particles alone on the same grid, with the explicit step of the weakly compressible model
     !! (USL, the run's shape, kinematics, cfl, flip and gravity; no damping, contact or
     !! projection). Its walls obey the solid's volume constraint (one contact field: a body lands
-    !! on the floor, not a cell above it). None without a deformable solid, or with a prescribed
-    !! rigid body in the run (its nodes would be missing from the substeps): those runs keep the
-    !! solids' acoustic step.
+    !! on the floor, not a cell above it). None without a deformable solid.
+    !! Prescribed rigid bodies (model "rigid") are in it too, after the deformable particles
+    !! (isub(nsub+1:)), with their velocity tables: their nodes hold the solid in every substep as
+    !! they do in the explicit step (impose_rigid), e.g. the anchor that clamps a plate. The
+    !! substeps move them (the coupled step leaves them where they are, cpdi_fsi solid_g2p), and
+    !! only their position and velocity come back. Measured (docs/notes/fsi_subcycling.md, 648158e):
+    !! elastic_obstacle incompressible at h 4 mm, auto passes its gates in 1,572 steps (acoustic
+    !! 7,943), implicit goes unstable from ~0.3 s; the 10 GPa bar of rigid_obstacle runs with the
+    !! incompressible water (implicit 508 steps at 11.68 mm, ~500 substeps per water step).
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, k, n
-    logical :: keep(s%p%n)
+    logical :: keep(s%p%n), rig(s%p%n)
     call sim_release(s)
     s%inc%subcycled = .false.
     if (s%inc%substeps == 0) return
-    if (any(s%rigid(s%p%mat))) return
     keep = s%inc%solid(s%p%mat)
-    n = count(keep)
-    if (n == 0) return   ! no deformable solid (water alone, or free rigid bodies): nothing to subcycle
+    rig = s%rigid(s%p%mat)
+    if (count(keep) == 0) return   ! no deformable solid (water alone, rigid bodies only): nothing to subcycle
+    n = count(keep) + count(rig)
     if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling == COUPLING_BATTY) then
       call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
                   'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
@@ -238,6 +244,12 @@ contains
       k = k + 1
       s%isub(k) = ip
     end do
+    s%nsub = k
+    do ip = 1, s%p%n
+      if (.not. rig(ip)) cycle
+      k = k + 1
+      s%isub(k) = ip
+    end do
     associate (u => s%sub)
       call grid_init(u%g, s%g%origin, s%g%ncell, s%g%h, s%g%walls, st)
       if (.not. st%ok()) return
@@ -246,7 +258,8 @@ contains
       u%mats = s%mats
       u%rigid = s%rigid
       u%fluid = s%fluid
-      u%any_rigid = .false.
+      u%any_rigid = s%nsub < n
+      if (allocated(s%vtab)) u%vtab = s%vtab   ! the substeps give the rigid bodies their tables' motion
       u%has_materials = .true.
       call particles_alloc(u%p, n, st)
       if (.not. st%ok()) return
@@ -285,6 +298,7 @@ contains
     s%sub => null()
     if (allocated(s%isub)) deallocate (s%isub)
     if (allocated(s%xw)) deallocate (s%xw)
+    s%nsub = 0
   end subroutine sim_release
 
   subroutine to_sub(s, dt)
@@ -305,9 +319,10 @@ contains
         u%p%work(1, :) = -0.5_wp*(s%p%sig(1, i) + s%p%sig(2, i))
         u%p%sig(1, :) = s%p%sig(1, i) + u%p%work(1, :)
         u%p%sig(2, :) = s%p%sig(2, i) + u%p%work(1, :)
-        do k = 1, size(i)
+        do k = 1, s%nsub
           u%p%work(2, k) = incomp_pressure_at(s%inc, s%g, s%p%x(:, i(k)))
         end do
+        u%p%work(:, s%nsub + 1:) = 0.0_wp   ! rigid particles: no stress
         u%sub_t0 = s%t
       end if
       u%p%r = s%p%r(:, i)
@@ -353,15 +368,17 @@ contains
           return
         end if
       end do
-      s%p%x(:, i) = u%p%x
+      s%p%x(:, i) = u%p%x   ! the rigid particles' positions and velocities too (the substeps move them)
       s%p%v(:, i) = u%p%v
-      s%p%F(:, i) = u%p%F
-      s%p%L(:, i) = u%p%L
-      s%p%sig(:, i) = u%p%sig
-      s%p%r(:, i) = u%p%r
-      s%p%vol(i) = u%p%vol
-      s%p%psi(i) = u%p%psi
-      s%p%jbar(i) = u%p%jbar
+      associate (d => i(1:s%nsub), n => s%nsub)   ! the rest is the deformable particles' only
+        s%p%F(:, d) = u%p%F(:, 1:n)
+        s%p%L(:, d) = u%p%L(:, 1:n)
+        s%p%sig(:, d) = u%p%sig(:, 1:n)
+        s%p%r(:, d) = u%p%r(:, 1:n)
+        s%p%vol(d) = u%p%vol(1:n)
+        s%p%psi(d) = u%p%psi(1:n)
+        s%p%jbar(d) = u%p%jbar(1:n)
+      end associate
     end associate
   end subroutine subcycle_solids
 
