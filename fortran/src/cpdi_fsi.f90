@@ -18,7 +18,7 @@ module cpdi_fsi
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_NAN, CPDI_ERR_JACOBIAN
-  use cpdi_grid, only: grid_apply_walls, hold_on_walls, WALL_OPEN
+  use cpdi_grid, only: grid_apply_walls, hold_on_walls, grid_box
   use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
   use cpdi_materials, only: material_stresses
   use cpdi_kinematics, only: det2, map_domains
@@ -265,9 +265,7 @@ contains
     fl = s%opt%flip
     batty = s%inc%coupling == COUPLING_BATTY
     sub = associated(s%sub)
-    xmin = s%g%origin
-    xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
-    closed = s%g%walls /= WALL_OPEN
+    call grid_box(s%g, xmin, xmax, closed)
     ke = 0.0_wp
     mom = 0.0_wp
     wg = 0.0_wp

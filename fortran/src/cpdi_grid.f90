@@ -40,7 +40,7 @@ module cpdi_grid
     procedure :: node_x => grid_node_x
   end type grid_t
 
-  public :: grid_init, grid_fields, grid_apply_walls, inside_fraction, hold_on_walls, grid_clear_p2g
+  public :: grid_init, grid_fields, grid_apply_walls, inside_fraction, hold_on_walls, grid_clear_p2g, grid_box
 
 contains
 
@@ -268,6 +268,17 @@ contains
       hat_part = 0.0_wp
     end if
   end function hat_part
+
+  pure subroutine grid_box(g, xmin, xmax, closed)
+    !! The grid's extent (its lower-left and upper-right corners) and which of its edges are
+    !! walls (left, right, bottom, top): what every G2P needs to hold particles on the walls.
+    type(grid_t), intent(in) :: g
+    real(wp), intent(out) :: xmin(2), xmax(2)
+    logical, intent(out), optional :: closed(4)
+    xmin = g%origin
+    xmax = g%origin + real(g%ncell, wp)*g%h
+    if (present(closed)) closed = g%walls /= WALL_OPEN
+  end subroutine grid_box
 
   pure subroutine hold_on_walls(x, xmin, xmax, closed, nclamp)
     !! Particles are held on closed walls (the grid already stops their normal motion at the

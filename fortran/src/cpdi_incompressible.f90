@@ -21,7 +21,7 @@ module cpdi_incompressible
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_ALLOC, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_SOLVE, &
                          CPDI_ERR_NAN
-  use cpdi_grid, only: grid_t, hold_on_walls, grid_apply_walls, WALL_OPEN, GRID_PAD
+  use cpdi_grid, only: grid_t, hold_on_walls, grid_box, grid_apply_walls, WALL_OPEN, GRID_PAD
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: NCHUNK, chunk_range
@@ -942,9 +942,7 @@ contains
     character(len=300) :: buf
 
     apic = ic%transfer == TRANSFER_APIC
-    xmin = g%origin
-    xmax = g%origin + real(g%ncell, wp)*g%h
-    closed = g%walls /= WALL_OPEN
+    call grid_box(g, xmin, xmax, closed)
     vmax = 0.0_wp
     bad = 0
     associate (mc => ic%mc)

@@ -29,7 +29,7 @@ module cpdi_rigid_body
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC
   use cpdi_particles, only: particles_t
-  use cpdi_grid, only: grid_t, WALL_OPEN
+  use cpdi_grid, only: grid_t, grid_box, WALL_OPEN
   use cpdi_pressure, only: mac_t, CELL_FLUID, CELL_SOLID
   implicit none
   private
@@ -307,8 +307,7 @@ contains
     real(wp) :: xmin(2), xmax(2), vsave(2), wsave, fl(2), mb
     logical :: left, right
     if (rb%n == 0) return
-    xmin = g%origin
-    xmax = g%origin + real(g%ncell, wp)*g%h
+    call grid_box(g, xmin, xmax)
     do b = 1, rb%n
       vsave = rb%v(:, b)
       wsave = rb%w(b)

@@ -6,7 +6,7 @@ module cpdi_transfer
   !! cpdi_incompressible.)
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
-  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, hold_on_walls, WALL_OPEN
+  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, hold_on_walls, grid_box, WALL_OPEN
   use cpdi_shape, only: shape_t, shape_count, shape_slot
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
@@ -204,9 +204,7 @@ contains
 
     flip = s%opt%flip
     musl = s%opt%update == UPDATE_MUSL
-    xmin = s%g%origin
-    xmax = s%g%origin + real(s%g%ncell, wp)*s%g%h
-    closed = s%g%walls /= WALL_OPEN
+    call grid_box(s%g, xmin, xmax, closed)
     ke = 0.0_wp
     mom = 0.0_wp
     wg = 0.0_wp
