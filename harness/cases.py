@@ -153,13 +153,14 @@ SCHEMA: dict[str, Key] = {
                                           "Cholesky; iterations grow like sqrt(cells)) or multigrid (a geometric "
                                           "multigrid V-cycle; iterations about constant)",
                                 choices=("mic0", "multigrid"), default="mic0"),
-        "solid_substeps": Key("choice", "incompressible water with deformable solids: off (the coupled step is the "
-                                        "solid's acoustic step), auto (the solids' explicit steps subcycled inside "
-                                        "the water's step; docs/fsi_incompressible.md) or implicit (auto with the "
-                                        "solids' volumetric stress implicit in the projection; coupling mixture "
-                                        "only; docs/notes/fsi_subcycling.md). A run with a prescribed rigid body "
-                                        "(model rigid) keeps the acoustic step",
-                              choices=("off", "auto", "implicit"), default="implicit"),
+        "solid_substeps": Key("choice", "incompressible water with deformable solids: auto (the coupling chooses "
+                                        "by what the solids are: implicit, or explicit with coupling batty or a "
+                                        "solid held by a prescribed rigid body), off (the coupled step is the "
+                                        "solid's acoustic step), explicit (the solids' explicit steps subcycled "
+                                        "inside the water's step) or implicit (explicit with the solids' "
+                                        "volumetric stress implicit in the projection; coupling mixture only); "
+                                        "docs/fsi_incompressible.md",
+                              choices=("auto", "off", "explicit", "implicit"), default="auto"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
@@ -491,11 +492,11 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
     used = {b["material"] for b in bodies}
     models = {m["model"] for m in mats if m["name"] in used}
     if (solver["fluid"] == "incompressible" and solver["solid_substeps"] == "implicit"
-            and solver["coupling"] == "batty" and models & {"hencky", "neo_hookean"} and "rigid" not in models):
-        raise CaseError("solver.solid_substeps = \"implicit\" (the default) needs coupling = \"mixture\": its "
+            and solver["coupling"] == "batty" and models & {"hencky", "neo_hookean"}):
+        raise CaseError("solver.solid_substeps = \"implicit\" needs coupling = \"mixture\": its "
                         "projection carries the deformable solid's volumetric stress, and batty's pressure lives in "
-                        "the water's cells only; use coupling = \"mixture\", or solid_substeps = \"auto\" or "
-                        "\"off\" with batty")
+                        "the water's cells only; use coupling = \"mixture\", or "
+                        "solid_substeps = \"auto\", \"explicit\" or \"off\" with batty")
 
     probes = {}
     for name, spec in (data.get("probes") or {}).items():

@@ -27,7 +27,7 @@ FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
 TRANSFERS = {"flip": 0, "apic": 1}
 COUPLINGS = {"mixture": 0, "batty": 1}
 PRECONDS = {"mic0": 0, "multigrid": 1}
-SOLID_SUBSTEPS = {"off": 0, "auto": 1, "implicit": 2}
+SOLID_SUBSTEPS = {"off": 0, "explicit": 1, "implicit": 2, "auto": 3}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
 DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
               "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",

@@ -45,7 +45,7 @@ def _stretched() -> dict:
     return d
 
 
-def _subcycled(substeps: str = "auto") -> dict:
+def _subcycled(substeps: str = "explicit") -> dict:
     """A Hencky block dropped into incompressible water, its explicit steps subcycled inside the
     water's step (solid_substeps; cpdi_step subcycle_solids): the solid's substeps run the
     explicit stages of the weakly compressible step, with the same threads. substeps "implicit":

@@ -376,14 +376,14 @@ def test_mixture_submerged_solid_at_rest_feels_exactly_the_buoyancy():
 
 
 def test_subcycled_neutral_block_at_rest_feels_exactly_the_buoyancy_at_the_waters_pace():
-    # solid_substeps = "auto": the Hencky block's explicit steps run inside the water's step
+    # solid_substeps = "explicit": the Hencky block's explicit steps run inside the water's step
     # (cpdi_step subcycle_solids). A neutrally buoyant block at rest in resting water stays at
     # rest with the water's force rho_w g V on it, as with the acoustic step, and the coupled
     # step is the water's (its advective limit, cfl h / sqrt(g h) = 0.036 s here), not the
     # solid's (cfl h / c = 7e-4 s for E = 1 MPa).
     block = ((0.4, 0.1), (0.6, 0.3))
     buoyancy = RHO * G * 0.2 * 0.2
-    sim, nw = tank_with_block(RHO, block, coupling="mixture", solid_substeps="auto")
+    sim, nw = tank_with_block(RHO, block, coupling="mixture", solid_substeps="explicit")
     steps, t = sim.advance(0.5, land=False)
     f, st = sim.solid_force(), sim.state()
     sim.close()
@@ -412,6 +412,35 @@ def test_implicit_substeps_compress_a_neutral_block_by_its_bulk_stiffness_at_the
     assert 0.0 < -st["v"][nw:, 1].mean() <= G * dv * t
     c = np.sqrt(1.0e6 * 0.7 / (1.3 * 0.4) / RHO)
     assert t / steps >= 10 * 0.5 * H_CELL / c
+
+
+@pytest.mark.parametrize("coupling, anchored, chosen", [("mixture", False, "implicit"), ("batty", False, "explicit"),
+                                                         ("mixture", True, "explicit")])
+def test_auto_substeps_choose_by_what_the_solid_is(coupling, anchored, chosen):
+    # solid_substeps = "auto" (the cases' default): the coupling picks the mode (cpdi_step
+    # prepare_solids): a free deformable solid with the mixture coupling steps implicit (its
+    # volumetric stress in the projection), with batty (no pressure in the solid's cells) explicit,
+    # and a solid held by a prescribed rigid body explicit; each run equals the chosen mode's bit
+    # for bit, and differs from the other's (so the test sees which one ran)
+    other = "explicit" if chosen == "implicit" else "implicit"
+
+    def final(mode):
+        if anchored:
+            sim, _, _ = plate_on_anchor(mode)
+        else:
+            sim, _ = tank_with_block(800.0, ((0.4, 0.3), (0.6, 0.45)), coupling=coupling, solid_substeps=mode)
+        try:
+            sim.advance(0.1, land=False)
+            return sim.state()["x"]
+        except CpdiError as e:   # batty refuses implicit
+            return str(e)
+        finally:
+            sim.close()
+
+    got = final("auto")
+    np.testing.assert_array_equal(got, final(chosen))
+    ref = final(other)
+    assert isinstance(ref, str) or np.abs(got - ref).max() > 0.0
 
 
 def test_implicit_substeps_need_the_mixture_coupling():
@@ -676,7 +705,7 @@ def test_coupled_water_step_is_the_advective_limit_of_its_fastest_particle():
     assert dt == pytest.approx(H_CELL / (np.sqrt(2) * 3.0 + np.sqrt(G * H_CELL)), rel=1e-14)
 
 
-@pytest.mark.parametrize("mode", ["auto", "implicit"])
+@pytest.mark.parametrize("mode", ["explicit", "implicit", "auto"])
 def test_substeps_leave_a_run_without_deformable_solids_as_it_is(mode):
     # solid_substeps only concerns deformable solids: a free rigid body (coupled through its boundary
     # flux, whatever coupling says) runs bit for bit as with "off", and "implicit" is not refused
@@ -723,13 +752,13 @@ def plate_on_anchor(solid_substeps, anchor_velocity=(0.0, 0.0), rho_s=RHO):
     return sim, x, mat
 
 
-@pytest.mark.parametrize("mode", ["auto", "implicit"])
+@pytest.mark.parametrize("mode", ["explicit", "implicit"])
 def test_subcycled_plate_is_held_by_its_moving_rigid_anchor(mode):
     # a prescribed rigid body joins the deformable solids' substeps (cpdi_step prepare_solids): its
     # nodes hold the plate in every substep (impose_rigid), and the substeps alone move it, once
     # per water step (the coupled step leaves it in place): the anchor, driven up at 0.1 m/s,
     # has moved U t to rounding (measured 1e-17 m), the plate's two lowest rows of particles
-    # (on the anchor's nodes) go with it (measured 1.7e-5 / 2.2e-5 m auto / implicit; the
+    # (on the anchor's nodes) go with it (measured 1.7e-5 / 2.2e-5 m explicit / implicit; the
     # acoustic step ("off") 1.1e-3 m), and the coupled step is the water's, >= 10 of the plate's
     # acoustic steps (12-13 steps in 0.3 s here against off's 447)
     U = np.array([0.0, 0.1])
@@ -746,10 +775,10 @@ def test_subcycled_plate_is_held_by_its_moving_rigid_anchor(mode):
 
 
 def test_subcycled_neutral_plate_on_a_fixed_anchor_stays_at_rest():
-    # solid_substeps = "auto", a neutrally buoyant plate on a fixed anchor in resting water: it
+    # solid_substeps = "explicit", a neutrally buoyant plate on a fixed anchor in resting water: it
     # stays where it is (measured max |dx| 1.7e-5 m, |v| 4.8e-4 m/s after 0.3 s; the acoustic
     # step, "off", moves it 1.7e-3 m and rings at 0.42 m/s), the anchor does not move at all
-    sim, x0, mat = plate_on_anchor("auto")
+    sim, x0, mat = plate_on_anchor("explicit")
     sim.advance(0.3, land=False)
     st = sim.state()
     sim.close()
@@ -759,7 +788,7 @@ def test_subcycled_neutral_plate_on_a_fixed_anchor_stays_at_rest():
     assert np.abs(st["v"][mat == 1]).max() <= 5e-3
 
 
-@pytest.mark.parametrize("mode", ["auto", "implicit"])
+@pytest.mark.parametrize("mode", ["explicit", "implicit"])
 def test_subcycled_anchor_follows_its_velocity_table(mode):
     # the substeps carry the run's velocity tables: each substep moves the anchor by the table's mean
     # over it, so over the run it moves the table's integral (0.5 * 0.2 s * 0.2 m/s = 0.02 m up)

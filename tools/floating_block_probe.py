@@ -28,7 +28,7 @@ from harness.checks import floating_block as fb
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--substeps", default="auto", choices=("off", "auto", "implicit"))
+    ap.add_argument("--substeps", default="auto", choices=("auto", "off", "explicit", "implicit"))
     ap.add_argument("--rho", type=float, default=500.0, choices=[r for r, _ in fb.RUNS])
     ap.add_argument("--cell", type=float, default=0.05)
     ap.add_argument("--t-end", type=float, default=4.0)

@@ -660,9 +660,10 @@ contains
     !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
     !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
     !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
-    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 auto, their explicit
-    !! steps subcycled inside the water's; 2 implicit, auto with the solids' volumetric stress implicit in
-    !! the projection; docs/fsi_incompressible.md, docs/notes/fsi_subcycling.md).
+    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 explicit, their explicit
+    !! steps subcycled inside the water's; 2 implicit, explicit with the solids' volumetric stress
+    !! implicit in the projection; 3 auto, the coupling chooses by what the solids are, cpdi_step
+    !! prepare_solids; docs/fsi_incompressible.md, docs/notes/fsi_subcycling.md).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
     real(c_double), intent(in) :: value
@@ -697,8 +698,8 @@ contains
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case ('solid_substeps')
-      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off), 1 (auto) or 2 (implicit)')
+      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp .and. value /= 3.0_wp) then
+        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off), 1 (explicit), 2 (implicit) or 3 (auto)')
       else
         s%inc%substeps = nint(value, ik)
       end if

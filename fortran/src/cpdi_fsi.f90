@@ -79,7 +79,7 @@ contains
       return
     end if
     call solid_p2g(s, dt)
-    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. associated(s%sub)) call solid_compliance(s)
+    if (s%inc%submode == SUBSTEPS_IMPLICIT) call solid_compliance(s)
     call rb_begin(s%inc%rb, s%p, s%opt%gravity, dt)   ! free rigid bodies: state and gravity (cpdi_rigid_body)
     call rb_walls(s%inc%rb, s%g, s%p, dt, .true.)     ! ... and what the walls hold in the pressure solve
     s%inc%dt_corr = s%opt%cfl*s%g%h/max(s%inc%smax_w, tiny(1.0_wp))   ! the water's own step
@@ -156,7 +156,7 @@ contains
     vwalls = batty .or. associated(s%sub)   ! the walls under the solid's volume constraint
     ! solid_substeps = "implicit": the in-plane deviatoric stress only; the mean stress is the
     ! projection's pressure (solid_compliance, cpdi_incompressible solid_helmholtz)
-    dev = s%inc%substeps == SUBSTEPS_IMPLICIT .and. associated(s%sub)
+    dev = s%inc%submode == SUBSTEPS_IMPLICIT
     associate (g => s%g, p => s%p)
       if (vwalls) s%inc%svol = 0.0_wp
       g%m = 0.0_wp

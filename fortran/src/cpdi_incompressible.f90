@@ -40,9 +40,12 @@ module cpdi_incompressible
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
-  integer(ik), parameter, public :: SUBSTEPS_AUTO = 1      !! solid_substeps = "auto"
-  integer(ik), parameter, public :: SUBSTEPS_IMPLICIT = 2  !! solid_substeps = "implicit": auto, the solids'
-                                                           !! volumetric stress implicit in the projection
+  integer(ik), parameter, public :: SUBSTEPS_OFF = 0       !! solid_substeps = "off": the solids' acoustic step
+  integer(ik), parameter, public :: SUBSTEPS_EXPLICIT = 1  !! "explicit": the solids' explicit steps subcycled
+  integer(ik), parameter, public :: SUBSTEPS_IMPLICIT = 2  !! "implicit": explicit, the solids' volumetric
+                                                           !! stress implicit in the projection
+  integer(ik), parameter, public :: SUBSTEPS_AUTO = 3      !! "auto": the coupling chooses by what the solids
+                                                           !! are (cpdi_step prepare_solids)
 
   type, public :: incomp_t
     !! Settings and work storage of the incompressible water model.
@@ -81,8 +84,10 @@ module cpdi_incompressible
     real(wp), allocatable :: svol(:)          !! batty: the solids' nodal volume (walls' volume constraint)
     real(wp) :: vfull = 0.0_wp                !! batty: fullness h^2 (cpdi_fsi; grid_apply_walls)
     ! Deformable solids subcycled inside the water's step (cpdi_step subcycle_solids, cpdi_fsi)
-    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1 auto,
-                                              !! 2 implicit
+    integer(ik) :: substeps = 0               !! option solid_substeps: 0 off (the solids' acoustic step), 1
+                                              !! explicit, 2 implicit, 3 auto (the coupling chooses)
+    integer(ik) :: submode = 0                !! the mode this run steps with (cpdi_step prepare_solids): 0 off,
+                                              !! 1 explicit, 2 implicit
     ! solid_substeps = "implicit" (cpdi_fsi solid_compliance): per cell, sum of w V_p / (h^2 K_p) over the
     ! solid particles (cmp) and of w V_p p_p / (h^2 K_p) (cmpp), p_p their in-plane mean pressure at t^n
     real(wp), allocatable :: cmp(:), cmpp(:)
@@ -559,7 +564,7 @@ contains
         call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
       else
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
-        if (ic%coupled .and. ic%substeps == SUBSTEPS_IMPLICIT) call solid_helmholtz(ic, dt)
+        if (ic%coupled .and. ic%submode == SUBSTEPS_IMPLICIT) call solid_helmholtz(ic, dt)
       end if
       call toc(timers, 3, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)

@@ -33,8 +33,8 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, SUBSTEPS_IMPLICIT, incomp_pressure_at, &
-                                 COUPLING_BATTY
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, incomp_pressure_at, COUPLING_BATTY, &
+                                 SUBSTEPS_OFF, SUBSTEPS_EXPLICIT, SUBSTEPS_IMPLICIT, SUBSTEPS_AUTO
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
   use cpdi_sim, only: sim_t, all_ok, all_int, tic_master, toc_master, MIN_PER_THREAD, PROBE_MIN, PROBE_MAX, &
@@ -216,25 +216,35 @@ contains
     !! (isub(nsub+1:)), with their velocity tables: their nodes hold the solid in every substep as
     !! they do in the explicit step (impose_rigid), e.g. the anchor that clamps a plate. The
     !! substeps move them (the coupled step leaves them where they are, cpdi_fsi solid_g2p), and
-    !! only their position and velocity come back. Measured (docs/notes/fsi_subcycling.md, 648158e):
-    !! elastic_obstacle incompressible at h 4 mm, auto passes its gates in 1,572 steps (acoustic
-    !! 7,943), implicit goes unstable from ~0.3 s; the 10 GPa bar of rigid_obstacle runs with the
-    !! incompressible water (implicit 508 steps at 11.68 mm, ~500 substeps per water step).
+    !! only their position and velocity come back (docs/notes/fsi_subcycling.md, "Prescribed rigid
+    !! bodies in the substeps"). Also resolves solid_substeps = "auto" into the mode the run steps
+    !! with (inc%submode).
     type(sim_t), intent(inout) :: s
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, k, n
     logical :: keep(s%p%n), rig(s%p%n)
     call sim_release(s)
     s%inc%subcycled = .false.
-    if (s%inc%substeps == 0) return
+    s%inc%submode = SUBSTEPS_OFF
+    if (s%inc%substeps == SUBSTEPS_OFF) return
     keep = s%inc%solid(s%p%mat)
     rig = s%rigid(s%p%mat)
     if (count(keep) == 0) return   ! no deformable solid (water alone, rigid bodies only): nothing to subcycle
     n = count(keep) + count(rig)
     if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling == COUPLING_BATTY) then
       call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
-                  'carries the solid''s volumetric stress); use solid_substeps = "auto" with batty')
+                  'carries the solid''s volumetric stress); use solid_substeps = "explicit" with batty')
       return
+    end if
+    s%inc%submode = s%inc%substeps
+    if (s%inc%substeps == SUBSTEPS_AUTO) then
+      ! the coupling's choice: the volumetric stress implicit in the projection (the added-mass
+      ! stable mode: a light free body floats), except where implicit is not stable or not
+      ! defined: with batty (its pressure lives in the water's cells only) and with a solid held by
+      ! a prescribed rigid body (elastic_obstacle's anchored plate rings and blows up under
+      ! implicit, docs/notes/fsi_subcycling.md), which step explicitly
+      s%inc%submode = SUBSTEPS_IMPLICIT
+      if (s%inc%coupling == COUPLING_BATTY .or. count(rig) > 0) s%inc%submode = SUBSTEPS_EXPLICIT
     end if
     allocate (s%sub)
     allocate (s%isub(n), s%xw(2, n))
@@ -272,7 +282,7 @@ contains
       allocate (u%body(n))
       u%body = 1
       u%contact = .true.   ! one field: the walls' volume constraint only (nothing to contact)
-      u%devonly = s%inc%substeps == SUBSTEPS_IMPLICIT   ! the volumetric stress is the projection's
+      u%devonly = s%inc%submode == SUBSTEPS_IMPLICIT   ! the volumetric stress is the projection's
       u%fullness = s%fullness
       u%opt = s%opt
       u%opt%fluid = 0
@@ -286,6 +296,7 @@ contains
       call sim_prepare(u, st)
     end associate
     s%inc%subcycled = st%ok()
+    if (.not. st%ok()) s%inc%submode = SUBSTEPS_OFF
   end subroutine prepare_solids
 
   recursive subroutine sim_release(s)
