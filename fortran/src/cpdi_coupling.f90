@@ -1,5 +1,5 @@
 !> Solids coupled to the incompressible water through face fractions and boundary fluxes
-!> (after Batty, Bertails & Bridson 2007; docs/fsi_incompressible.md, "coupling = batty").
+!> (after Batty, Bertails & Bridson 2007; docs/fsi_incompressible.md, 'Deformable solids, coupling = "batty"').
 module cpdi_coupling
   !! The pressure lives in the water's cells only; the solid enters each cell's constraint as the
   !! flux of its boundary through it. With w_f = V_s,f / h^2 (clamped to [0, 1]) the solid fraction

@@ -5,9 +5,10 @@ cases/elastic_obstacle.toml, run twice: as one continuum (water and plate share 
 velocity field, each particle with its own material) and with Bardenhagen contact between
 the water and the plate (frictionless; the plate shares its field with its rigid anchor), both
 with the weakly compressible water, and a third time with the incompressible water coupled to
-the plate as one continuum (no-slip; docs/fsi_incompressible.md), the plate's explicit steps
-subcycled inside the water's step (solid_substeps = "auto" chooses explicit for a plate held by
-its prescribed anchor). The
+the plate as one continuum (no-slip; docs/fsi_incompressible.md; the history:
+docs/notes/fsi_incompressible_history.md, "elastic_obstacle: why the plate stayed bent"), the
+plate's explicit steps subcycled inside the water's step (solid_substeps = "auto" chooses explicit
+for a plate held by its prescribed anchor). The
 probe is the horizontal displacement of the plate's top-left corner. The published curves
 scatter (peak 0.041-0.048 m at 0.23-0.25 s), so they are used as an envelope: the metric
 `tip_outside_envelope_rms` is the RMS distance of our curve outside the band they span,

@@ -178,5 +178,5 @@ def run(ctx: CheckContext) -> CheckResult:
         + ", ".join(f"{m['strain_energy_end']:.2f} J (x{m['strain_energy_growth']:.1f})"
                     for m in map(measures, runs))
         + ". The coupling pumps strain energy into the solid (sinking_block with this water: kJ; "
-        "docs/fsi_incompressible.md).")
+        "docs/notes/fsi_incompressible_history.md).")
     return res
