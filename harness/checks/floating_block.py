@@ -177,6 +177,6 @@ def run(ctx: CheckContext) -> CheckResult:
         "at a quarter of the run): the static water load strains it by ~0.5 % (~0.3 J), the runs end at "
         + ", ".join(f"{m['strain_energy_end']:.2f} J (x{m['strain_energy_growth']:.1f})"
                     for m in map(measures, runs))
-        + ". The coupling pumps strain energy into the solid (sinking_block with this water: kJ; "
-        "docs/notes/fsi_incompressible_history.md).")
+        + " (the history of this measure: docs/notes/fsi_incompressible_history.md, \"The solid's strain "
+        "energy crept up\").")
     return res
