@@ -30,6 +30,12 @@ of both builds. The affinity mask, the load average and the OpenMP settings are 
 are printed and stored (bench.json "gates"); like every bench result they do not change the
 exit code (0 unless a run crashed).
 
+FSI (issue 37, tools/bench_fsi.py, "fsi" in bench.json): sinking_block's steps per simulated
+second against the same tank without the block (Hencky block and free rigid body, gated <= 2x;
+the quick path runs this part only), and elastic_obstacle with the incompressible water at 4 mm:
+its wall time and steps, and with `--base` the base commit's against this one's on one thread,
+interleaved (gated >= 5x).
+
 Outputs: reports/bench/bench.json (its contract: docs/design.md, "Interface contract"), bench.png (particle-updates
 per second against particles, 1 and 2 threads), phases.png (where a step's time goes) and
 scaling.png (speed-up against threads).
@@ -123,14 +129,21 @@ def measure(size: str, shape: str, steps: int) -> dict:
             "phase_s": timers, "phase_ns_per_update": {k: v / updates * 1e9 for k, v in timers.items()}}
 
 
+def python(code: str, threads: int, repo: Path = REPO, args: tuple[str, ...] = ()) -> subprocess.Popen:
+    """A fresh interpreter running `code` in checkout `repo` (this one, or a base of
+    prepare_base: its own harness, extension and case files) on `threads` OpenMP threads; its
+    last line of output is the JSON that _collect reads."""
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(repo))
+    return subprocess.Popen([sys.executable, "-c", code, *args], cwd=repo, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
 def _spawn(size: str, shape: str, threads: int, repo: Path = REPO) -> subprocess.Popen:
     # a base commit (--base) older than the move of the bench to tools/ has it in the harness package
     code = ("import json\ntry:\n    from tools.bench import measure\nexcept ImportError:\n"
             "    from harness.bench import measure\n"
             f"print(json.dumps(measure({size!r}, {shape!r}, {STEPS[size]})))")
-    env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(repo))
-    return subprocess.Popen([sys.executable, "-c", code], cwd=repo, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    return python(code, threads, repo)
 
 
 def _collect(p: subprocess.Popen, what: str) -> dict:
@@ -519,7 +532,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         (bar.write if bar else print)(msg)
     if bar:
         bar.close()
-    from tools import bench_water
+    from tools import bench_fsi, bench_water
 
     say = print
     try:
@@ -528,6 +541,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         windows = [speedup_windows(size, say) for size in (["8k"] if quick else ["32k", "128k"])]
         based = base_rows(base, 3 if quick else BASE_REPEATS, say) if base else None
         water = bench_water.run(quick)
+        fsi, fsi_gates = bench_fsi.run(quick, base, say)
     except RuntimeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -542,6 +556,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
                                            "pass": based["pass"]}
     gates["water_incompressible_speedup_real_k"] = {"value": water[2]["speedup_of_incompressible"], "min": 20.0,
                                                     "pass": water[2]["speedup_of_incompressible"] >= 20.0}
+    gates.update(fsi_gates)
     for k, g in gates.items():
         bound = f"<= {g['max']}" if "max" in g else f">= {g['min']}"
         value = "n/a" if g["value"] is None else f"{g['value']:.3f}"
@@ -550,7 +565,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
             "provenance": provenance.collect(REPO, REPO / "build" / "fortran"), "quick": quick,
             "machine": {"start": machine_start, "end": _machine()}, "loaded": loaded, "scaling": scal,
             "speedup_windows": windows,
-            "base": based, "gates": gates, "water_models": water}
+            "base": based, "gates": gates, "water_models": water, "fsi": fsi}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")
     _plot(rows, OUT / "bench.png")
     _plot_phases(rows, OUT / "phases.png")
@@ -567,6 +582,6 @@ if __name__ == "__main__":
     b = argparse.ArgumentParser(prog="python -m tools.bench", description="performance benchmark (make bench)")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--base", metavar="SHA", help="also build commit SHA in .bench-base/ and compare 1-thread "
-                   "32k CPDI throughput, interleaved")
+                   "32k CPDI throughput and elastic_obstacle's incompressible 4 mm wall time, interleaved")
     args = b.parse_args()
     sys.exit(main(quick=args.quick, base=args.base))
