@@ -27,11 +27,73 @@ def cell_fill(x: np.ndarray, vol: np.ndarray, origin, h: float, ncell) -> np.nda
     return fill / h**2
 
 
+def _all_around(mask: np.ndarray) -> np.ndarray:
+    """True where each of the 8 cells around (edge and corner neighbours) is True or lies
+    beyond the domain's edge (a wall)."""
+    nx, ny = mask.shape
+    pad = np.ones((nx + 2, ny + 2), dtype=bool)
+    pad[1:-1, 1:-1] = mask
+    out = np.ones((nx, ny), dtype=bool)
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            if (di, dj) != (1, 1):
+                out &= pad[di:di + nx, dj:dj + ny]
+    return out
+
+
+def interior_cells(fill: np.ndarray, threshold: float = 0.5) -> np.ndarray:
+    """Cells inside the water: each of the 8 cells around it (edge and corner neighbours)
+    is water or lies beyond the domain's edge (a wall). A cell is water when its fill is
+    >= threshold, or when it is a one-cell gap: its fill lower but all 8 around it at
+    >= threshold. The cell's own fill does not decide: an under-filled interior cell is
+    water spread out.
+
+    Why 8 neighbours and 1/2: cell_fill spreads volume with the bilinear hat, whose support
+    for a cell is the 2h x 2h square around its centre. For water bounded by a straight
+    surface, a cell's fill is >= 1/2 exactly when its centre is on the water's side; if all
+    8 neighbours' centres are, so is the whole support square (convex, its corners are those
+    centres), and the cell's fill is exactly 1 at the water's own volume: a level or tilted
+    surface reads no change. With the 4 edge neighbours only, a cell under a 45 degree
+    surface could count as interior at fill down to 23/24; with a threshold below 1/2, a
+    cell under a level surface at fill below 1. A higher threshold would hand more of the
+    water's noisy interior (fills 0.9-1.1) to the surface rule, which does not see
+    spreading. The one-cell-gap rule makes a missing cell's worth of particles count as
+    gained volume whole (without it the gap's neighbours, next to a cell below 1/2, would
+    be surface cells); a gap two cells or more across reads as an air bubble with its own
+    surface (no change)."""
+    wet = fill >= threshold
+    return _all_around(wet | _all_around(wet))
+
+
 def volume_change(x: np.ndarray, vol: np.ndarray, origin, h: float, ncell) -> float:
-    """Relative change of the volume the water occupies: - sum over cells of the fill beyond
-    1, times the cell area, over the particles' volume. Water that packs closer than its
-    particles' volumes allow overfills cells (the free surface then drops); spray and gaps
-    fill less than 1 and take nothing away. 0 for a body of water at its own volume."""
+    """Relative change of the volume the water occupies, (occupied - V) / V, V the particles'
+    volume; positive when the water has spread out (gaps, sparse cells), negative when it
+    has packed closer than its particles' volumes allow.
+
+    The occupied volume counts every interior cell (interior_cells: its 8 neighbours water,
+    fill >= 1/2, or wall) whole, whatever its fill (an under-filled interior cell is water
+    spread out, volume gained; an over-filled one is water packed, volume lost), plus
+    min(fill, 1) of every other cell: at the surface a part-filled cell is the surface's
+    share of the water, not a change, and an over-filled surface cell counts full. So
+    change = [sum over interior cells of (1 - fill) - sum over the others of max(fill - 1, 0)]
+    h^2 / V. 0 for a body of water at its own volume, level or tilted surface (to the
+    lattice's resolution).
+
+    The measure before (overfill_change) counted the second sum only: it saw packing and
+    never spreading, so it read the one-sided volume correction's spread-out water along
+    walls as no change (docs/notes/dam_break_pressure_sensor4.md)."""
+    fill = cell_fill(x, vol, origin, h, ncell)
+    inner = interior_cells(fill)
+    occupied = float(np.sum(inner)) + float(np.sum(np.minimum(fill, 1.0)[~inner]))
+    v = float(np.sum(vol))
+    return (occupied * h**2 - v) / v
+
+
+def overfill_change(x: np.ndarray, vol: np.ndarray, origin, h: float, ncell) -> float:
+    """The volume measure before volume_change counted spreading (reported beside it, not
+    gated): - sum over cells of the fill beyond 1, times the cell area, over the particles'
+    volume. Sees packing only: spray, gaps and sparse cells fill less than 1 and take
+    nothing away."""
     fill = cell_fill(x, vol, origin, h, ncell)
     return -float(np.sum(np.clip(fill - 1.0, 0.0, None))) * h**2 / float(np.sum(vol))
 

@@ -123,10 +123,94 @@ def test_one_overfilled_cell_by_hand():
     assert water.volume_change(x, vol, ORIGIN, H, NCELL) == pytest.approx(-2.0 / 3.5, rel=1e-12)
 
 
-def test_spray_and_gaps_take_nothing_away():
+def test_overfill_change_takes_nothing_away_for_sparse_water():
+    """The measure before (reported beside volume_change): under-filled cells count nothing."""
     hi = (ORIGIN[0] + NCELL[0] * H, ORIGIN[1] + NCELL[1] * H)
     x, _, vol = lattice(ORIGIN, hi, H / 2)
-    assert water.volume_change(x, 0.5 * vol, ORIGIN, H, NCELL) == 0.0
+    assert water.overfill_change(x, 0.5 * vol, ORIGIN, H, NCELL) == 0.0
+    x2, vol2 = np.vstack([x, x]), np.concatenate([vol, vol])
+    assert water.overfill_change(x2, vol2, ORIGIN, H, NCELL) == pytest.approx(-0.5, rel=1e-12)
+
+
+def test_spread_out_water_gains_volume():
+    """Water spread over the whole domain at fill 0.6 occupies 1/0.6 of its volume."""
+    hi = (ORIGIN[0] + NCELL[0] * H, ORIGIN[1] + NCELL[1] * H)
+    x, _, vol = lattice(ORIGIN, hi, H / 2)
+    assert water.volume_change(x, 0.6 * vol, ORIGIN, H, NCELL) == pytest.approx(1.0 / 0.6 - 1.0, rel=1e-12)
+
+
+def test_spray_takes_nothing_away():
+    """Isolated drops (no neighbour at fill >= 1/2) are surface: they occupy what they fill."""
+    x = np.array([centre(0, 3), centre(2, 1), centre(4, 3)])
+    assert water.volume_change(x, np.full(3, 0.3 * H**2), ORIGIN, H, NCELL) == pytest.approx(0.0, abs=1e-12)
+
+
+# A tank wider than NCELL, so the water has a free surface and an interior: 14 x 10 cells, the water
+# 10 cells wide (its right side free) and 5 deep, 2 x 2 particles a cell.
+TANK = (14, 10)
+T0 = (0.0, 0.0)
+
+
+def tank(width=1.0, depth=0.5, d=H / 2):
+    return lattice(T0, (width, depth), d)
+
+
+def test_lattice_at_its_own_volume_reads_zero():
+    x, _, vol = tank()
+    fill = water.cell_fill(x, vol, T0, H, TANK)
+    inner = water.interior_cells(fill)
+    assert inner[:9, :4].all() and not inner[9, :].any() and not inner[:, 4].any()   # the surface is not interior
+    assert water.volume_change(x, vol, T0, H, TANK) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("squeeze", [0.98, 0.99])
+def test_compressed_lattice_reads_its_compression(squeeze):
+    """The lattice squeezed vertically in a box it spans (walls left and right, 20 rows deep): the
+    19 interior rows over-fill by 1/squeeze; the top row, part-filled, shows nothing (the surface
+    rule cannot tell packing from less water there), so the measure reads about 19/20 of the
+    compression (to the lattice's sampling of the fill)."""
+    box = (30, 30)
+    x, _, vol = lattice(T0, (3.0, 2.0), H / 2)
+    vc = water.volume_change(x * [1.0, squeeze], vol, T0, H, box)
+    assert vc == pytest.approx(19 / 20 * (1.0 - 1.0 / squeeze), rel=0.02)
+    assert vc == pytest.approx(-(1.0 - squeeze), rel=0.06)
+
+
+def test_interior_gap_reads_the_gap():
+    """Particles removed from the middle: the under-filled cells are water spread out, +gap / V."""
+    x, _, vol = tank()
+    for removed in (np.all(np.abs(x - [0.5 * H + 0.5, 2.5 * H]) < H / 2, axis=1),      # one cell's 4
+                    np.all(np.abs(x - [0.575, 0.275]) < H / 8, axis=1)):               # one particle
+        keep = ~removed
+        gap = vol[removed].sum()
+        assert gap > 0.0
+        assert water.volume_change(x[keep], vol[keep], T0, H, TANK) == pytest.approx(gap / vol[keep].sum(), rel=1e-9)
+
+
+def test_gap_two_cells_across_is_an_air_bubble():
+    """Documented limit: a gap two cells across has its own surface and reads no change."""
+    x, _, vol = tank()
+    keep = ~np.all(np.abs(x - [0.6, 0.25]) < [H, H / 2], axis=1)
+    assert (~keep).sum() == 8
+    assert water.volume_change(x[keep], vol[keep], T0, H, TANK) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("depth", [0.25, 0.22, 0.24, 0.27])
+def test_part_filled_surface_row_reads_zero(depth):
+    """The top row half filled (depth 2.5 h), or any other part: the surface's share, not a change."""
+    x, _, vol = tank(depth=depth, d=H / 10)
+    fill = water.cell_fill(x, vol, T0, H, TANK)
+    assert 0.2 < fill[0, 2] < 0.8
+    assert water.volume_change(x, vol, T0, H, TANK) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("c", [0.63, 0.83])
+def test_tilted_surface_reads_zero(c):
+    """A 45 degree surface x + y < c: the 8-neighbour rule keeps its cells out of the interior
+    (with 4 neighbours the cells under it would count whole at fills below 1)."""
+    x, _, vol = lattice(T0, (1.0, 1.0), H / 10)
+    k = x[:, 0] + x[:, 1] < c
+    assert water.volume_change(x[k], vol[k], T0, H, TANK) == pytest.approx(0.0, abs=1e-12)
 
 
 # --------------------------------------------------------------------------- surface_height
