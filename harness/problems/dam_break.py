@@ -17,11 +17,22 @@ FRONT = refdata.read("martin_moyce_1952_front_n2eq2_a2.25in_table2.csv")
 HEIGHT = refdata.read("martin_moyce_1952_height_n2eq2_a2.25in_table6.csv")
 
 
-def load(cell: float, shape: str = "cpdi", projection: str = "cell", K: float = 2.13e9, kinematics: str = "log",
-         t_end: float = 0.45):
-    return cases.load(CASE, [f"grid.cell={cell}", f'solver.shape="{shape}"', f'solver.projection="{projection}"',
-                             f"materials.0.bulk_modulus={K}", f'solver.kinematics="{kinematics}"',
-                             f"solver.t_end={t_end}"])
+# The case file's water is the incompressible one (APIC, no volumetric projection); the weakly
+# compressible water (the seed paper's, FLIP) is these overrides.
+WEAKLY_COMPRESSIBLE = ['solver.fluid="weakly_compressible"', 'solver.transfer="flip"']
+
+
+def load(cell: float, *, fluid: str, shape: str = "cpdi", projection: str = "cell", K: float = 2.13e9,
+         kinematics: str = "log", t_end: float = 0.45):
+    """cases/dam_break.toml at cell size ``cell``; ``fluid``: "incompressible" (the case file's water)
+    or "weakly_compressible" (WEAKLY_COMPRESSIBLE; K is its bulk modulus). The incompressible water
+    refuses a volumetric projection: give it projection="none"."""
+    if fluid not in ("incompressible", "weakly_compressible"):
+        raise ValueError(f"fluid must be incompressible or weakly_compressible, got {fluid!r}")
+    water = WEAKLY_COMPRESSIBLE if fluid == "weakly_compressible" else []
+    return cases.load(CASE, [*water, f"grid.cell={cell}", f'solver.shape="{shape}"',
+                             f'solver.projection="{projection}"', f"materials.0.bulk_modulus={K}",
+                             f'solver.kinematics="{kinematics}"', f"solver.t_end={t_end}"])
 
 
 def run(cell, out_dir=None, progress=False, **kw):
