@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness import cases, paths, plots, runner, water
+from harness import cases, parallel, paths, plots, runner, water
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "resting_tank"
@@ -71,6 +71,11 @@ def run(ctx: CheckContext) -> CheckResult:
     return run_tank(ctx, NAME, REQUIREMENT, CASE)
 
 
+def run_measured(case, out) -> dict:
+    """One run of the tank and its measures (a worker's task)."""
+    return measures(runner.run(case, out, progress=False), case)
+
+
 def run_tank(ctx: CheckContext, name: str, requirement: str, case_path,
              gates: tuple[tuple[str, float, str], ...] = ()) -> CheckResult:
     """Water at rest in a tank, incompressible (gated) and weakly compressible (reported): the
@@ -79,10 +84,14 @@ def run_tank(ctx: CheckContext, name: str, requirement: str, case_path,
     res = CheckResult(name, requirement)
     case = cases.load(case_path)
     slope = surface_slope(case)
-    inc = measures(runner.run(case, ctx.runs_dir / "incompressible", progress=ctx.progress), case)
     t_wc = 3.0 if ctx.quick else 10.0
     wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
-    wc = measures(runner.run(wc_case, ctx.runs_dir / "weakly_compressible", progress=ctx.progress), wc_case)
+    # the two water models side by side on the verify's workers
+    inc, wc = parallel.pmap(run_measured, [(case, ctx.runs_dir / "incompressible"),
+                                           (wc_case, ctx.runs_dir / "weakly_compressible")])
+    for label, out in (("incompressible", inc), ("weakly compressible", wc)):
+        if isinstance(out, Exception):
+            raise RuntimeError(f"the {label} run failed: {out}")
     keys = ("ke_max", "pressure_rel_l2", "surface_drift", "volume_change", "overfill_change", "max_displacement_h",
             "pressure_noise_kpa") + tuple(k for k, _, _ in gates)
     for key in keys:
