@@ -156,6 +156,12 @@ _active: Cluster | None = None
 CONNECT_TIMEOUT = "10s"  # for --scheduler
 
 
+def call(fn: Callable[..., Any], args: tuple) -> Any:
+    """fn(*args): the task of a pmap whose items run different functions,
+    ``pmap(call, [(f, (a, b)), (g, (c,)), ...])``."""
+    return fn(*args)
+
+
 def pmap(fn: Callable[..., Any], items: Iterable[Any], workers: int | None = None) -> list[Any]:
     """[fn(*item) for item in items] on the active cluster (see the module doc), or outside one in up
     to ``workers`` processes (default: the cores this process may use). fn must be a module-level

@@ -93,10 +93,6 @@ def _snap_run(n, projection, kinematics, out: Path, t_end, fluid):
             "summary": r.summary, "volume_change": abs(vc), "overfill_change": abs(of)}
 
 
-def _either_run(fn, args):
-    return fn(*args)
-
-
 def cost(n, t_end, K=None):
     """Estimated particle-updates of a run at h = L/n, to start the longest runs first (no result
     depends on it): 8 n^2 particles; weakly compressible (bulk modulus K) t_end c / (cfl h) acoustic
@@ -136,7 +132,7 @@ def run(ctx: CheckContext) -> CheckResult:
     # long ones leave free, and no long run starts last
     order = sorted(range(len(tasks)), key=lambda i: -tasks[i][2])
     outs: list = [None] * len(tasks)
-    for i, out in zip(order, parallel.pmap(_either_run, [tasks[i][:2] for i in order]), strict=True):
+    for i, out in zip(order, parallel.pmap(parallel.call, [tasks[i][:2] for i in order]), strict=True):
         outs[i] = out
     big = dict(zip(jobs, outs[:len(jobs)], strict=True))
     by_job = dict(zip(reduced, outs[len(jobs):], strict=True))

@@ -48,10 +48,6 @@ def run_dam(proj: str, cell: float):
     return runner.run(case, None, progress=False, snapshots=False)
 
 
-def _either(fn, args):
-    return fn(*args)
-
-
 def run(ctx: CheckContext) -> CheckResult:
     levels = [10, 20] if ctx.quick else [10, 20, 40]
     res = CheckResult(NAME, REQUIREMENT)
@@ -60,7 +56,8 @@ def run(ctx: CheckContext) -> CheckResult:
     cell_dam = 0.0146 if ctx.quick else 0.0073
     # every run at once on the verify's workers, the finest grids and the collapsing columns first
     cols = [(shape, proj, n) for n in levels[::-1] for shape in SHAPES for proj in PROJS]
-    outs = parallel.pmap(_either, [(run_dam, (proj, cell_dam)) for proj in PROJS] + [(run_column, c) for c in cols])
+    outs = parallel.pmap(parallel.call, [(run_dam, (proj, cell_dam)) for proj in PROJS]
+                         + [(run_column, c) for c in cols])
     for what, out in zip([f"collapsing column, projection {p}" for p in PROJS] + [f"column {c}" for c in cols], outs,
                          strict=True):
         if isinstance(out, Exception):
