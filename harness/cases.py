@@ -146,20 +146,16 @@ SCHEMA: dict[str, Key] = {
                                  check=nonneg),
         "volume_correction": Key("float", "incompressible: an over-filled cell gets div v = beta (fill - 1) / dt",
                                  default=0.5, check=in_range(0.0, 2.0)),
-        "coupling": Key("choice", "incompressible water with solids: mixture (one continuum on the faces) or batty "
-                                  "(water-only pressure cells, the solid's boundary flux; docs/fsi_incompressible.md)",
-                        choices=("mixture", "batty"), default="mixture"),
         "pressure_precond": Key("choice", "incompressible: preconditioner of the pressure CG, mic0 (incomplete "
                                           "Cholesky; iterations grow like sqrt(cells)) or multigrid (a geometric "
                                           "multigrid V-cycle; iterations about constant)",
                                 choices=("mic0", "multigrid"), default="mic0"),
         "solid_substeps": Key("choice", "incompressible water with deformable solids: auto (the coupling chooses "
-                                        "by what the solids are: implicit, or explicit with coupling batty or a "
-                                        "solid held by a prescribed rigid body), off (the coupled step is the "
-                                        "solid's acoustic step), explicit (the solids' explicit steps subcycled "
-                                        "inside the water's step) or implicit (explicit with the solids' "
-                                        "volumetric stress implicit in the projection; coupling mixture only); "
-                                        "docs/fsi_incompressible.md",
+                                        "by what the solids are: implicit, or explicit for a solid held by a "
+                                        "prescribed rigid body), off (the coupled step is the solid's acoustic "
+                                        "step), explicit (the solids' explicit steps subcycled inside the water's "
+                                        "step) or implicit (explicit with the solids' volumetric stress implicit "
+                                        "in the projection); docs/fsi_incompressible.md",
                               choices=("auto", "off", "explicit", "implicit"), default="auto"),
     }),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
@@ -297,12 +293,22 @@ def _coerce(path: str, spec: Key, value):
     return value
 
 
+# Keys a case could once set, with why they went and what to do instead.
+RETIRED = {
+    "solver.coupling": "the coupling is chosen by what the solids are (a deformable or prescribed solid "
+                       "and the water are one continuum on the MAC faces, a free rigid body enters through its "
+                       "boundary flux; docs/fsi_incompressible.md); delete the key",
+}
+
+
 def _validate_table(path: str, schema: dict[str, Key], data) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise CaseError(f"[{path}] must be a table, got {_type_name(data)}")
     for key in data:
         if key not in schema:
             where = f"{path}.{key}" if path else key
+            if where in RETIRED:
+                raise CaseError(f"'{where}' was removed: {RETIRED[where]}")
             raise CaseError(f"unknown key '{where}'{_suggest(key, schema)}")
     out: dict[str, Any] = {}
     for key, spec in schema.items():
@@ -489,14 +495,6 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
         if solver["shape"] == "gimp" and b["ppc"] < 1:
             raise CaseError(f"bodies[{i}].ppc must be at least 1 for gimp")
     data["bodies"] = bodies
-    used = {b["material"] for b in bodies}
-    models = {m["model"] for m in mats if m["name"] in used}
-    if (solver["fluid"] == "incompressible" and solver["solid_substeps"] == "implicit"
-            and solver["coupling"] == "batty" and models & {"hencky", "neo_hookean"}):
-        raise CaseError("solver.solid_substeps = \"implicit\" needs coupling = \"mixture\": its "
-                        "projection carries the deformable solid's volumetric stress, and batty's pressure lives in "
-                        "the water's cells only; use coupling = \"mixture\", or "
-                        "solid_substeps = \"auto\", \"explicit\" or \"off\" with batty")
 
     probes = {}
     for name, spec in (data.get("probes") or {}).items():

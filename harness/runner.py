@@ -120,7 +120,7 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
                     projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
                     transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
                     cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
-                    coupling=s["coupling"], pressure_precond=s["pressure_precond"],
+                    pressure_precond=s["pressure_precond"],
                     solid_substeps=s["solid_substeps"])
     if any(s["body_acceleration"]):
         sim.set_body_force(np.tile(np.asarray(s["body_acceleration"], dtype=np.float64), (parts.x.shape[0], 1)))

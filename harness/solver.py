@@ -25,7 +25,6 @@ KINEMATICS = {"log": 0, "small": 1}
 PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
 FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
 TRANSFERS = {"flip": 0, "apic": 1}
-COUPLINGS = {"mixture": 0, "batty": 1}
 PRECONDS = {"mic0": 0, "multigrid": 1}
 SOLID_SUBSTEPS = {"off": 0, "explicit": 1, "implicit": 2, "auto": 3}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
@@ -230,13 +229,13 @@ class Simulation:
                     flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
                     fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
                     cg_max_iterations: int = 0, volume_correction: float = 0.5,
-                    coupling: str = "mixture", pressure_precond: str = "mic0",
+                    pressure_precond: str = "mic0",
                     solid_substeps: str = "off") -> None:
         """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
         ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
         ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG
-        settings and ``volume_correction`` belong to it); ``coupling`` is how solids join that
-        water's projection (docs/fsi_incompressible.md); ``pressure_precond`` the pressure CG's
+        settings and ``volume_correction`` belong to it; how solids join its projection is chosen by
+        what they are, docs/fsi_incompressible.md); ``pressure_precond`` the pressure CG's
         preconditioner, ``mic0`` or ``multigrid`` (docs/incompressible_water.md); ``solid_substeps``
         whether deformable solids in that water are subcycled inside its step
         (docs/fsi_incompressible.md)."""
@@ -253,7 +252,6 @@ class Simulation:
                          projection_stabilization], dtype=np.float64)
         _call("cpdi_set_options", self._handle, iopt, ropt)
         for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS),
-                                    ("coupling", coupling, COUPLINGS),
                                     ("pressure_precond", pressure_precond, PRECONDS),
                                     ("solid_substeps", solid_substeps, SOLID_SUBSTEPS)):
             if value not in allowed:

@@ -55,7 +55,7 @@ def _subcycled(substeps: str = "explicit") -> dict:
         "grid": {"size": [1.0, 1.0], "cell": 0.05,
                  "walls": {"left": "slip", "right": "slip", "bottom": "slip", "top": "open"}},
         "solver": {"fluid": "incompressible", "shape": "cpdi", "update": "usl", "cfl": 0.5, "t_end": 10.0,
-                   "gravity": [0.0, -9.81], "flip": 0.99, "coupling": "mixture", "solid_substeps": substeps},
+                   "gravity": [0.0, -9.81], "flip": 0.99, "solid_substeps": substeps},
         "materials": [{"name": "water", "model": "newtonian_fluid", "density": 1000.0, "viscosity": 1e-3},
                       {"name": "block", "model": "hencky", "density": 1500.0, "youngs_modulus": 1e6,
                        "poisson_ratio": 0.3}],

@@ -657,8 +657,7 @@ contains
     !! A solver option by name (options added after the positional iopt/ropt of
     !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
     !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
-    !! volume_correction (beta of the divergence target beta (fill - 1) / dt), coupling (solids with
-    !! the incompressible water: 0 mixture, 1 batty; docs/fsi_incompressible.md), pressure_precond
+    !! volume_correction (beta of the divergence target beta (fill - 1) / dt), pressure_precond
     !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
     !! incompressible water: 0 off, the coupled step is their acoustic one; 1 explicit, their explicit
     !! steps subcycled inside the water's; 2 implicit, explicit with the solids' volumetric stress
@@ -693,8 +692,6 @@ contains
     case ('volume_correction')
       call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
                     'volume_correction must lie in [0, 2]; 0.1-1 is typical')
-    case ('coupling')
-      call set_flag(s%inc%coupling, 'coupling must be 0 (mixture) or 1 (batty)')
     case ('pressure_precond')
       call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
     case ('solid_substeps')
@@ -705,7 +702,7 @@ contains
       end if
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, coupling, pressure_precond or solid_substeps')
+                  'cg_tolerance, cg_max_iterations, volume_correction, pressure_precond or solid_substeps')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)

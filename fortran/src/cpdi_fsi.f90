@@ -260,10 +260,9 @@ contains
     type(status_t), intent(inout) :: st
     integer(ik) :: ip, a, k, nclamp
     real(wp) :: wk, gxk, gyk, vn(2), dv(2), l(4), xo(2), dp(2), fs(2), xmin(2), xmax(2), ke, mom(2), wg, fl, f(4), t(4), j
-    logical :: closed(4), batty, sub
+    logical :: closed(4), sub
     character(len=300) :: buf
     fl = s%opt%flip
-    batty = s%inc%coupling == COUPLING_BATTY
     sub = associated(s%sub)
     call grid_box(s%g, xmin, xmax, closed)
     ke = 0.0_wp
@@ -293,22 +292,15 @@ contains
             l = l + [(g%vx(k, 1) + g%fx(k, 1))*gxk, (g%vy(k, 1) + g%fy(k, 1))*gxk, &
                      (g%vx(k, 1) + g%fx(k, 1))*gyk, (g%vy(k, 1) + g%fy(k, 1))*gyk]
           end do
-          dp = 0.0_wp   ! the projection's change, from the faces (mixture) or the nodes (batty)
-          if (batty) then
-            do a = 1, shape_count(s%sh, ip)
-              call shape_slot(s%sh, ip, a, k, wk, gxk, gyk)
-              dp = dp + wk*[g%fx(k, 1), g%fy(k, 1)]
-            end do
-          else
-            do a = 1, shape_count(s%inc%shu, ip)
-              call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
-              dp(1) = dp(1) + wk*s%inc%us(k)
-            end do
-            do a = 1, shape_count(s%inc%shv, ip)
-              call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
-              dp(2) = dp(2) + wk*s%inc%vs(k)
-            end do
-          end if
+          dp = 0.0_wp   ! the projection's change, from the faces (a deformable solid is always mixture)
+          do a = 1, shape_count(s%inc%shu, ip)
+            call shape_slot(s%inc%shu, ip, a, k, wk, gxk, gyk)
+            dp(1) = dp(1) + wk*s%inc%us(k)
+          end do
+          do a = 1, shape_count(s%inc%shv, ip)
+            call shape_slot(s%inc%shv, ip, a, k, wk, gxk, gyk)
+            dp(2) = dp(2) + wk*s%inc%vs(k)
+          end do
           vn = vn + dp
           dv = dv + dp
           fs = fs + p%m(ip)*dp/dt

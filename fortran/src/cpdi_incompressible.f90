@@ -126,6 +126,9 @@ contains
       ic%rvel(:, m) = mats(m)%vel
     end do
     ic%coupled = any((ic%solid .or. ic%rigid .or. ic%free) .and. used)
+    ! the coupling is chosen by what the solids are: one continuum on the faces with deformable and
+    ! prescribed solids, the boundary flux with free rigid bodies
+    ic%coupling = COUPLING_MIXTURE
     if (any(ic%free .and. used)) then
       ! free rigid bodies couple through the boundary-flux operator (cpdi_rigid_body); a deformable
       ! solid beside them would need its own share of every face's solid fraction

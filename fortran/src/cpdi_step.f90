@@ -33,7 +33,7 @@ module cpdi_step
   use cpdi_shape, only: shape_alloc, shape_compute, SHAPE_GIMP, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: strips_alloc, strips_build, blocks_region, blocks_enter, MAX_THREADS
   use cpdi_projection, only: projection_alloc, projection_setup, projection_apply, PROJ_NONE
-  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, incomp_pressure_at, COUPLING_BATTY, &
+  use cpdi_incompressible, only: incomp_prepare, incomp_step, FLUID_INCOMPRESSIBLE, incomp_pressure_at, &
                                  SUBSTEPS_OFF, SUBSTEPS_EXPLICIT, SUBSTEPS_IMPLICIT, SUBSTEPS_AUTO
   use cpdi_fsi, only: fsi_prepare, fsi_step, fsi_finish
   use cpdi_motion, only: motion_apply
@@ -231,20 +231,14 @@ contains
     rig = s%rigid(s%p%mat)
     if (count(keep) == 0) return   ! no deformable solid (water alone, rigid bodies only): nothing to subcycle
     n = count(keep) + count(rig)
-    if (s%inc%substeps == SUBSTEPS_IMPLICIT .and. s%inc%coupling == COUPLING_BATTY) then
-      call st%set(CPDI_ERR_INPUT, 'solid_substeps = "implicit" needs coupling = "mixture" (its projection '// &
-                  'carries the solid''s volumetric stress); use solid_substeps = "explicit" with batty')
-      return
-    end if
     s%inc%submode = s%inc%substeps
     if (s%inc%substeps == SUBSTEPS_AUTO) then
       ! the coupling's choice: the volumetric stress implicit in the projection (the added-mass
-      ! stable mode: a light free body floats), except where implicit is not stable or not
-      ! defined: with batty (its pressure lives in the water's cells only) and with a solid held by
-      ! a prescribed rigid body (elastic_obstacle's anchored plate rings and blows up under
-      ! implicit, docs/notes/fsi_subcycling.md), which step explicitly
+      ! stable mode: a light free body floats), except for a solid held by a prescribed rigid body
+      ! (elastic_obstacle's anchored plate rings and blows up under implicit,
+      ! docs/notes/fsi_subcycling.md), which steps explicitly
       s%inc%submode = SUBSTEPS_IMPLICIT
-      if (s%inc%coupling == COUPLING_BATTY .or. count(rig) > 0) s%inc%submode = SUBSTEPS_EXPLICIT
+      if (count(rig) > 0) s%inc%submode = SUBSTEPS_EXPLICIT
     end if
     allocate (s%sub)
     allocate (s%isub(n), s%xw(2, n))
