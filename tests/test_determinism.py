@@ -65,6 +65,16 @@ def _subcycled(substeps: str = "explicit") -> dict:
     }
 
 
+def _incompressible(transfer: str) -> dict:
+    """The dam break with the incompressible water alone: the weights on both face lattices
+    (cpdi_incompressible weights), P2G to the faces by strips of rows (p2g_faces), the
+    multigrid-preconditioned solve and the water's G2P, all threaded."""
+    d = _dam_break("cpdi", "none")
+    d["solver"].update({"fluid": "incompressible", "transfer": transfer, "pressure_precond": "multigrid",
+                        "cfl": 0.4, "flip": 0.99})
+    return d
+
+
 def _anchored() -> dict:
     """A Hencky plate clamped by a prescribed rigid anchor (moving, so that the substeps move it)
     and struck by a collapsing water column, subcycled ("implicit"): the anchor's particles are in
@@ -86,6 +96,8 @@ CASES = {
     "mpm-none": _dam_break("mpm", "none"),
     "cpdi-contact": _with_block(),
     "cpdi-pool": _stretched(),
+    "incompressible-flip": _incompressible("flip"),
+    "incompressible-apic": _incompressible("apic"),
     "fsi-subcycled": _subcycled(),
     "fsi-implicit": _subcycled("implicit"),
     "fsi-anchored": _anchored(),

@@ -24,7 +24,8 @@ module cpdi_incompressible
   use cpdi_grid, only: grid_t, hold_on_walls, grid_box, grid_apply_walls, WALL_OPEN, GRID_PAD
   use cpdi_particles, only: particles_t
   use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
-  use cpdi_schedule, only: NCHUNK, chunk_range
+  use cpdi_schedule, only: NCHUNK, chunk_range, strips_t, strips_alloc, strips_build, strip_start, block_next, &
+                           blocks_t, blocks_region, blocks_enter
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
@@ -57,6 +58,8 @@ module cpdi_incompressible
     real(wp) :: visc = 0.0_wp          !! water viscosity [Pa s]
     type(grid_t) :: gu, gv             !! u and v face lattices (geometry only)
     type(shape_t) :: shu, shv          !! weights of every particle on them
+    type(strips_t) :: sp               !! particles in strips of face rows: P2G to the faces (cpdi_schedule)
+    integer(ik), allocatable :: prow(:) !! lowest face or cell row a particle's P2G touches (0-based)
     type(mac_t) :: mc                  !! staggered fields and the pressure system
     real(wp) :: red(8, NCHUNK) = 0.0_wp
     ! Solids coupled to the water (docs/fsi_incompressible.md): a single continuum on the faces.
@@ -167,10 +170,18 @@ contains
     ic%gv = lattice(g, [0.5_wp, 0.0_wp])
     realloc = .not. allocated(ic%shu%idx)
     if (.not. realloc) realloc = ic%shu%kind /= shape_kind .or. size(ic%shu%w, 2) /= p%n
+    if (.not. realloc) realloc = size(ic%sp%start) /= g%nn(2) + 2
     if (realloc) then
       call shape_alloc(ic%shu, shape_kind, p%n, st)
       if (st%ok()) call shape_alloc(ic%shv, shape_kind, p%n, st)
+      if (st%ok()) call strips_alloc(ic%sp, p%n, g%nn(2), st)
       if (.not. st%ok()) return
+      if (allocated(ic%prow)) deallocate (ic%prow)
+      allocate (ic%prow(p%n), stat=m)
+      if (m /= 0) then
+        call st%set(CPDI_ERR_ALLOC, 'could not allocate the particle ordering; use fewer particles')
+        return
+      end if
     end if
     lo = GRID_PAD + 1
     hi = GRID_PAD + g%ncell
@@ -281,8 +292,14 @@ contains
     integer(ik) :: bad, fail, pass
     character(len=300) :: buf
     do pass = 1, 2
+      ! shape_compute is orphaned worksharing over fixed particle blocks: the same weights at
+      ! any thread count
+      call blocks_region()
+      !$omp parallel default(shared)
+      call blocks_enter()
       if (pass == 1) call shape_compute(ic%gu, p, ic%shu, bad, fail, st)
       if (pass == 2) call shape_compute(ic%gv, p, ic%shv, bad, fail, st)
+      !$omp end parallel
       if (.not. st%ok()) return
       if (bad == 0) cycle
       if (fail == SHAPE_FAIL_INVERTED) then
@@ -300,15 +317,19 @@ contains
 
   subroutine p2g_faces(ic, p, g, dt, gravity, apic)
     !! Face masses and momenta (u, v), the impulse of gravity and body forces (uo, vo),
-    !! the cells holding water and their fill fraction.
+    !! the cells holding water and their fill fraction. Threaded by strips of rows
+    !! (cpdi_schedule): each particle's stencils on both face lattices and its cells lie within
+    !! its strip and the next, so the strips of one colour scatter in parallel; every face and
+    !! cell sums one even and one odd strip, each in particle order, at any thread count.
     type(incomp_t), intent(inout) :: ic
     type(particles_t), intent(in) :: p
     type(grid_t), intent(in) :: g
     real(wp), intent(in) :: dt, gravity(2)
     logical, intent(in) :: apic
-    integer(ik) :: ip, a, k, i, j, n1, kc(4)
-    real(wp) :: mp, w, gxk, gyk, xk(2), mom, s(2), wc(4), av, vp
-    logical :: solid, batty
+    integer(ik) :: ip, k, i, j, n1, span, colour, b, m
+    real(wp) :: av
+    logical :: batty
+    type(blocks_t) :: blk
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
       n1 = mc%nn(1)
@@ -321,46 +342,29 @@ contains
       mc%fill = 0.0_wp
       where (mc%cell == CELL_FLUID) mc%cell = CELL_AIR   ! walls stay
       if (ic%coupled) call clear_coupled()
-      av = 1.0_wp/g%h**2
-      do ip = 1, p%n
-        mp = p%m(ip)
-        vp = p%vol0(ip)
-        solid = .false.
-        if (ic%coupled) then
-          if (ic%rigid(p%mat(ip))) cycle   ! marked below, after the water
-          solid = ic%solid(p%mat(ip)) .or. ic%free(p%mat(ip))
-          vp = p%vol(ip)
-          if (ic%free(p%mat(ip))) then   ! volume only: the body's mass is its own (cpdi_rigid_body)
-            call scatter_v(ic%shu, ic%uvs)
-            call scatter_v(ic%shv, ic%vvs)
-            call scatter_v(ic%shu, ic%rb%uvb(:, ic%rb%slot(ip)))
-            call scatter_v(ic%shv, ic%rb%vvb(:, ic%rb%slot(ip)))
-          else if (solid) then
-            call scatter_mv(ic%shu, ic%usm, ic%uvs)
-            call scatter_mv(ic%shv, ic%vsm, ic%vvs)
-          else
-            call scatter_v(ic%shu, ic%uvw)
-            call scatter_v(ic%shv, ic%vvw)
-          end if
-        end if
-        if (.not. solid) then
-          call scatter(ic%shu, ic%gu, 1, mc%um, mc%u, mc%uo)
-          call scatter(ic%shv, ic%gv, 2, mc%vm, mc%v, mc%vo)
-        end if
-        ! cell of the particle, and its volume spread bilinearly over the cell centres (indices
-        ! clamped to the physical cells: a wall mirrors the water beyond it)
-        s = (p%x(:, ip) - g%gorig)/g%h
-        i = int(s(1)) + 1
-        j = int(s(2)) + 1
-        if (i >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2) .and. &
-            .not. (solid .and. batty)) mc%cell(i + (j - 1)*n1) = CELL_FLUID
-        call incomp_fill_weights(mc, g, p%x(:, ip), kc, wc)
-        do a = 1, 4
-          k = kc(a)
-          mc%fill(k) = mc%fill(k) + wc(a)*vp*av
-          if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wc(a)*vp*av
+    end associate
+    av = 1.0_wp/g%h**2
+    span = 0
+    call blocks_region()
+    !$omp parallel default(shared) private(ip, colour, b, m, blk)
+    call blocks_enter()
+    !$omp do schedule(static) reduction(max:span)
+    do ip = 1, p%n
+      span = max(span, p2g_rows(ic, p, g, ip))
+    end do
+    !$omp end do
+    call strips_build(ic%sp, ic%prow, span)
+    do colour = 1, 2
+      call strip_start(blk, ic%sp, colour)
+      do while (block_next(blk, b))
+        do m = ic%sp%start(b), ic%sp%start(b + 1) - 1
+          call p2g_particle(ic, p, g, ic%sp%perm(m), dt, gravity, apic, batty, av)
         end do
       end do
+      !$omp barrier
+    end do
+    !$omp end parallel
+    associate (mc => ic%mc)
       ! a cell without a particle centre inside the water is still water: the particles'
       ! volume covers it (a pocket of p = 0 there would pull the water around it in)
       ! (batty coupling: cpl_classify, from the water's own fill)
@@ -372,8 +376,8 @@ contains
         end do
       end do
       end if
-      if (ic%coupled) call mark_rigid()
     end associate
+    if (ic%coupled) call mark_rigid()
   contains
     subroutine clear_coupled()
       !! Coupling fields to zero; the last step's rigid cells back to air.
@@ -403,11 +407,12 @@ contains
 
     subroutine mark_rigid()
       !! Cells holding a rigid particle's centre bound the water with the body's velocity.
+      real(wp) :: sx(2)
       do ip = 1, p%n
         if (.not. ic%rigid(p%mat(ip))) cycle
-        s = (p%x(:, ip) - g%gorig)/g%h
-        i = int(s(1)) + 1
-        j = int(s(2)) + 1
+        sx = (p%x(:, ip) - g%gorig)/g%h
+        i = int(sx(1)) + 1
+        j = int(sx(2)) + 1
         if (i < ic%mc%lo(1) .or. i > ic%mc%hi(1) .or. j < ic%mc%lo(2) .or. j > ic%mc%hi(2)) cycle
         k = i + (j - 1)*n1
         ic%mc%cell(k) = CELL_SOLID
@@ -415,11 +420,82 @@ contains
         ic%mc%rvy(k) = ic%rvel(2, p%mat(ip))
       end do
     end subroutine mark_rigid
+  end subroutine p2g_faces
 
+  integer(ik) function p2g_rows(ic, p, g, ip) result(span)
+    !! Sets prow(ip), the lowest row (0-based, of the faces and cells, which share one numbering)
+    !! that particle ip's P2G writes: its stencils on both face lattices, its centre's cell and
+    !! its fill cells (incomp_fill_weights' rows). Returns the rows it spans above that one.
+    type(incomp_t), intent(inout) :: ic
+    type(particles_t), intent(in) :: p
+    type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: ip
+    integer(ik) :: lo, hi, jc, j0
+    real(wp) :: y
+    y = (p%x(2, ip) - g%gorig(2))/g%h
+    jc = int(y)
+    j0 = int(floor(y - 0.5_wp)) + 1
+    lo = min(ic%shu%row(ip), ic%shv%row(ip), jc, min(max(j0, ic%mc%lo(2)), ic%mc%hi(2)) - 1)
+    hi = max(ic%shu%row(ip) + ic%shu%span, ic%shv%row(ip) + ic%shv%span, jc, &
+             min(max(j0 + 1, ic%mc%lo(2)), ic%mc%hi(2)) - 1)
+    ic%prow(ip) = max(lo, 0_ik)
+    span = hi - ic%prow(ip)
+  end function p2g_rows
+
+  subroutine p2g_particle(ic, p, g, ip, dt, gravity, apic, batty, av)
+    !! P2G of particle ip to the faces and cells (p2g_faces), rigid particles excepted.
+    type(incomp_t), intent(inout) :: ic
+    type(particles_t), intent(in) :: p
+    type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: ip
+    real(wp), intent(in) :: dt, gravity(2), av
+    logical, intent(in) :: apic, batty
+    integer(ik) :: a, k, i, j, kc(4)
+    real(wp) :: mp, vp, sx(2), wc(4)
+    logical :: solid
+    mp = p%m(ip)
+    vp = p%vol0(ip)
+    solid = .false.
+    if (ic%coupled) then
+      if (ic%rigid(p%mat(ip))) return   ! marked after the water (p2g_faces mark_rigid)
+      solid = ic%solid(p%mat(ip)) .or. ic%free(p%mat(ip))
+      vp = p%vol(ip)
+      if (ic%free(p%mat(ip))) then   ! volume only: the body's mass is its own (cpdi_rigid_body)
+        call scatter_v(ic%shu, ic%uvs)
+        call scatter_v(ic%shv, ic%vvs)
+        call scatter_v(ic%shu, ic%rb%uvb(:, ic%rb%slot(ip)))
+        call scatter_v(ic%shv, ic%rb%vvb(:, ic%rb%slot(ip)))
+      else if (solid) then
+        call scatter_mv(ic%shu, ic%usm, ic%uvs)
+        call scatter_mv(ic%shv, ic%vsm, ic%vvs)
+      else
+        call scatter_v(ic%shu, ic%uvw)
+        call scatter_v(ic%shv, ic%vvw)
+      end if
+    end if
+    if (.not. solid) then
+      call scatter(ic%shu, ic%gu, 1, ic%mc%um, ic%mc%u, ic%mc%uo)
+      call scatter(ic%shv, ic%gv, 2, ic%mc%vm, ic%mc%v, ic%mc%vo)
+    end if
+    ! cell of the particle, and its volume spread bilinearly over the cell centres (indices
+    ! clamped to the physical cells: a wall mirrors the water beyond it)
+    sx = (p%x(:, ip) - g%gorig)/g%h
+    i = int(sx(1)) + 1
+    j = int(sx(2)) + 1
+    if (i >= ic%mc%lo(1) .and. i <= ic%mc%hi(1) .and. j >= ic%mc%lo(2) .and. j <= ic%mc%hi(2) .and. &
+        .not. (solid .and. batty)) ic%mc%cell(i + (j - 1)*ic%mc%nn(1)) = CELL_FLUID
+    call incomp_fill_weights(ic%mc, g, p%x(:, ip), kc, wc)
+    do a = 1, 4
+      k = kc(a)
+      ic%mc%fill(k) = ic%mc%fill(k) + wc(a)*vp*av
+      if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wc(a)*vp*av
+    end do
+  contains
     subroutine scatter_mv(sh, fm, fv)
       !! Mass (fm) and volume (fv) of particle ip to a face lattice.
       type(shape_t), intent(in) :: sh
       real(wp), intent(inout) :: fm(:), fv(:)
+      real(wp) :: w, gxk, gyk
       do a = 1, shape_count(sh, ip)
         call shape_slot(sh, ip, a, k, w, gxk, gyk)
         fm(k) = fm(k) + w*mp
@@ -431,6 +507,7 @@ contains
       !! Volume of particle ip to a face lattice.
       type(shape_t), intent(in) :: sh
       real(wp), intent(inout) :: fv(:)
+      real(wp) :: w, gxk, gyk
       do a = 1, shape_count(sh, ip)
         call shape_slot(sh, ip, a, k, w, gxk, gyk)
         fv(k) = fv(k) + w*vp
@@ -439,24 +516,39 @@ contains
 
     subroutine scatter(sh, gl, c, fm, fq, fi)
       !! Velocity component c of particle ip to its face lattice gl: mass fm, momentum fq
-      !! (APIC: with the affine part, c's row of the particle's L) and force impulse fi.
+      !! (APIC: with the affine part, c's row of the particle's L) and force impulse fi. The
+      !! slots in shape_slot's order (main, then pool), read from the arrays directly; a
+      !! node's position as grid_node_x gives it.
       type(shape_t), intent(in) :: sh
       type(grid_t), intent(in) :: gl
       integer(ik), intent(in) :: c
       real(wp), intent(inout) :: fm(:), fq(:), fi(:)
-      do a = 1, shape_count(sh, ip)
-        call shape_slot(sh, ip, a, k, w, gxk, gyk)
-        mom = p%v(c, ip)
-        if (apic) then
-          xk = gl%node_x(k) - p%x(:, ip)
-          mom = mom + p%L(c, ip)*xk(1) + p%L(c + 2, ip)*xk(2)
+      real(wp) :: v, lx, ly, gb, w, mom
+      integer(ik) :: col, nx, kk
+      v = p%v(c, ip)
+      lx = p%L(c, ip)
+      ly = p%L(c + 2, ip)
+      nx = gl%nn(1)
+      gb = gravity(c) + p%bf(c, ip)
+      do a = 1, sh%nm + sh%ns - sh%nm
+        if (a <= sh%nm) then
+          kk = sh%idx(a, ip)
+          w = sh%w(a, ip)
+        else
+          col = sh%ovf(ip)
+          if (col == 0) exit
+          kk = sh%pidx(a - sh%nm, col)
+          w = sh%pw(a - sh%nm, col)
         end if
-        fm(k) = fm(k) + w*mp
-        fq(k) = fq(k) + w*mp*mom
-        fi(k) = fi(k) + w*mp*dt*(gravity(c) + p%bf(c, ip))
+        mom = v
+        if (apic) mom = mom + lx*((gl%gorig(1) + real(mod(kk - 1, nx), wp)*gl%h) - p%x(1, ip)) &
+                            + ly*((gl%gorig(2) + real((kk - 1)/nx, wp)*gl%h) - p%x(2, ip))
+        fm(kk) = fm(kk) + w*mp
+        fq(kk) = fq(kk) + w*mp*mom
+        fi(kk) = fi(kk) + w*mp*dt*gb
       end do
     end subroutine scatter
-  end subroutine p2g_faces
+  end subroutine p2g_particle
 
   subroutine face_velocities(mc, mtol)
     !! Momenta to velocities: uo <- velocity before forces, u <- after forces.
@@ -1101,23 +1193,37 @@ contains
 
   pure subroutine gather(sh, ip, fv, fc, fd, vn, vc, dv, grad)
     !! One velocity component at particle ip from its face lattice: velocity vn, correction
-    !! velocity vc, FLIP increment dv (from fv, fc, fd) and the component's gradient.
+    !! velocity vc, FLIP increment dv (from fv, fc, fd) and the component's gradient. The
+    !! slots in shape_slot's order (main, then pool), read from the arrays directly.
     type(shape_t), intent(in) :: sh
     integer(ik), intent(in) :: ip
     real(wp), intent(in) :: fv(:), fc(:), fd(:)
     real(wp), intent(out) :: vn, vc, dv, grad(2)
-    integer(ik) :: a, k
-    real(wp) :: w, gxk, gyk
+    integer(ik) :: a, c, k
+    real(wp) :: w
     vn = 0.0_wp
     vc = 0.0_wp
     dv = 0.0_wp
     grad = 0.0_wp
-    do a = 1, shape_count(sh, ip)
-      call shape_slot(sh, ip, a, k, w, gxk, gyk)
+    do a = 1, sh%nm
+      k = sh%idx(a, ip)
+      w = sh%w(a, ip)
       vn = vn + w*fv(k)
       vc = vc + w*fc(k)
       dv = dv + w*fd(k)
-      grad = grad + fv(k)*[gxk, gyk]
+      grad(1) = grad(1) + fv(k)*sh%gx(a, ip)
+      grad(2) = grad(2) + fv(k)*sh%gy(a, ip)
+    end do
+    c = sh%ovf(ip)
+    if (c == 0) return
+    do a = 1, sh%ns - sh%nm
+      k = sh%pidx(a, c)
+      w = sh%pw(a, c)
+      vn = vn + w*fv(k)
+      vc = vc + w*fc(k)
+      dv = dv + w*fd(k)
+      grad(1) = grad(1) + fv(k)*sh%pgx(a, c)
+      grad(2) = grad(2) + fv(k)*sh%pgy(a, c)
     end do
   end subroutine gather
 
