@@ -560,9 +560,7 @@ def test_water_falls_freely_through_the_air_a_rigid_body_has_left(coupling):
     # under a water drop (0.25-0.35 x 0.85-0.95 m, open top) by t = 0.1 s, while the drop is still
     # 4 cells above it: the air the block left bounds nothing, and the drop falls freely,
     # v = -g t, through it (water fills the cells behind a body in water at once, so only air
-    # shows a stale wall). Kept 3 cells and more from walls and the block while it is near:
-    # within 2 cells the velocity extrapolated through the air already mixes a wall's velocity
-    # into the drop's (docs/notes/incompressible_water_measurements.md)
+    # shows a stale wall)
     d = H_CELL / 2
     xw, xb = lattice((0.25, 0.85), (0.35, 0.95), d), lattice((0.2, 0.5), (0.4, 0.6), d)
     x = np.vstack([xw, xb])
