@@ -29,7 +29,7 @@ module cpdi_incompressible
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
-                           mac_extrapolate, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
+                           mac_extrapolate, mac_constrain, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
   use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse
   implicit none
   private
@@ -682,12 +682,12 @@ contains
     else if (ic%coupled) then
       call faces_to_solid(ic, nm, mtol, dvx, dvy)
     end if
-    where (ic%mc%uval == 1)   ! FLIP increments of the faces the projection set
+    where (ic%mc%uval /= 0)   ! FLIP increments of the faces the projection set
       ic%mc%uo = ic%mc%u - ic%mc%uo
     elsewhere
       ic%mc%uo = 0.0_wp
     end where
-    where (ic%mc%vval == 1)
+    where (ic%mc%vval /= 0)
       ic%mc%vo = ic%mc%v - ic%mc%vo
     elsewhere
       ic%mc%vo = 0.0_wp
@@ -696,6 +696,8 @@ contains
     call mac_extrapolate(ic%mc, ic%mc%uo, ic%mc%uval, EXTRAPOLATION_LAYERS)
     call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
     call mac_extrapolate(ic%mc, ic%mc%vo, ic%mc%vval, EXTRAPOLATION_LAYERS)
+    call mac_constrain(ic%mc, ic%mc%u, ic%mc%v, .false.)   ! inside solids: their normal velocity
+    call mac_constrain(ic%mc, ic%mc%uo, ic%mc%vo, .true.)   ! (no FLIP increment there)
     call mac_ghost_pressure(ic%mc)
     call toc(timers, 3, t0)
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
@@ -994,6 +996,7 @@ contains
       call mac_project(ic%mc, dtc, ic%rho, still=.true.)
       call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
       call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
+      call mac_constrain(ic%mc, ic%mc%u, ic%mc%v, .true.)
     end if
     call swap(ic%mc%u, ic%mc%uc)
     call swap(ic%mc%v, ic%mc%vc)
@@ -1018,6 +1021,7 @@ contains
         where (ic%wv >= 1.0_wp) ic%mc%vval = 0
         call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
         call mac_extrapolate(ic%mc, ic%mc%v, ic%mc%vval, EXTRAPOLATION_LAYERS)
+        call mac_constrain(ic%mc, ic%mc%u, ic%mc%v, .true.)
       end if
       call swap(ic%mc%u, ic%mc%uc)
       call swap(ic%mc%v, ic%mc%vc)

@@ -43,6 +43,8 @@ module cpdi_pressure
   integer(ik), parameter, public :: CELL_AIR = 0
   integer(ik), parameter, public :: CELL_FLUID = 1
   integer(ik), parameter, public :: CELL_SOLID = 2
+  integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
+  integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
   real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
@@ -61,7 +63,7 @@ module cpdi_pressure
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
     real(wp), allocatable :: uc(:), vc(:)    !! volume-correction velocities (advection only)
-    integer(ik), allocatable :: uval(:), vval(:) !! 1: face set by the projection; 2, 3: extrapolated
+    integer(ik), allocatable :: uval(:), vval(:) !! FACE_WATER, FACE_WALL: set by the projection; 0: not set
     real(wp), allocatable :: p(:)            !! cell pressure [Pa]
     real(wp), allocatable :: pe(:)           !! pressure with ghost values in air cells next to water
     real(wp), allocatable :: b(:), adiag(:), ai(:), aj(:), pre(:), r(:), z(:), s(:), q(:)
@@ -91,7 +93,7 @@ module cpdi_pressure
 
   public :: mac_precondition
   public :: mac_alloc, mac_clear_system, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
-            mac_extrapolate, mac_ghost_pressure, mac_apply
+            mac_extrapolate, mac_constrain, mac_ghost_pressure, mac_apply
 
 contains
 
@@ -626,7 +628,7 @@ contains
     !! surface); faces next to a wall cell get the wall's normal velocity (a rigid body's
     !! cells their body's), or zero with still = .true. (a correction field: its solve held
     !! every wall still, so a moving body's velocity is no part of it). Marks the faces it set
-    !! (uval, vval = 1); the others are left for mac_extrapolate.
+    !! (uval, vval: FACE_WATER or FACE_WALL); the others are left for mac_extrapolate.
     type(mac_t), intent(inout) :: mc
     real(wp), intent(in) :: dt, rho
     logical, intent(in), optional :: still
@@ -667,25 +669,28 @@ contains
       if (tl == CELL_SOLID .or. tr == CELL_SOLID) then
         if (tl /= tr) then   ! a wall face: the wall's (or rigid body's) normal velocity
           w = wall*merge(rv(cl), rv(cr), tl == CELL_SOLID)
-          val = 1
+          val = FACE_WALL
         end if
       else if (tl == CELL_FLUID .and. tr == CELL_FLUID) then
         w = w - sa*(mc%p(cr) - mc%p(cl))
-        val = 1
+        val = FACE_WATER
       else if (tl == CELL_FLUID) then
         w = w + sa*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
-        val = 1
+        val = FACE_WATER
       else if (tr == CELL_FLUID) then
         w = w - sa*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
-        val = 1
+        val = FACE_WATER
       end if
     end subroutine face
   end subroutine mac_project
 
   subroutine mac_extrapolate(mc, w, val, layers)
     !! Faces the projection did not set (val = 0: not next to water) take the mean of their
-    !! set neighbours on the same lattice, layer by layer, so particles at the surface gather
-    !! projected values; faces still unset after `layers` layers are zero. val is left as
+    !! neighbours on the same lattice that water set (FACE_WATER), layer by layer, so particles at
+    !! the surface gather projected values; faces still unset after `layers` layers are zero.
+    !! Walls' faces (FACE_WALL) keep their normal velocity and are no source: an air face between
+    !! the water and a wall carries the water's velocity, not a mean with the wall's (Bridson 2015,
+    !! ch. 4); mac_constrain then imposes the solids' normal velocity inside them. val is left as
     !! it was (one marking serves several fields).
     type(mac_t), intent(in) :: mc
     real(wp), intent(inout) :: w(:)
@@ -718,6 +723,43 @@ contains
     end do
     where (lev == 0) w = 0.0_wp
   end subroutine mac_extrapolate
+
+  subroutine mac_constrain(mc, u, v, still)
+    !! After the extrapolation, the faces inside solid cells (Bridson 2015, ch. 4: the solid's
+    !! normal velocity is imposed where the extrapolation reached into it): between two cells of a
+    !! rigid body, both components are the body's velocity (0 with still); beyond a closed domain
+    !! wall, the wall-normal component is the wall's, 0, and the tangential one stays extrapolated
+    !! (slip). Particles whose domains reach past a wall then gather no velocity into it.
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(inout) :: u(:), v(:)
+    logical, intent(in) :: still
+    integer(ik) :: i, j, k, n1
+    real(wp) :: wall
+    n1 = mc%nn(1)
+    wall = merge(0.0_wp, 1.0_wp, still)
+    do j = 1, mc%nn(2)
+      do i = 2, n1
+        k = i + (j - 1)*n1
+        if (mc%cell(k - 1) /= CELL_SOLID .or. mc%cell(k) /= CELL_SOLID) cycle
+        if (i - 1 >= mc%lo(1) .and. i <= mc%hi(1) .and. j >= mc%lo(2) .and. j <= mc%hi(2)) then
+          u(k) = wall*mc%rvx(k)   ! inside a rigid body
+        else if (i < mc%lo(1) .or. i > mc%hi(1) + 1) then
+          u(k) = 0.0_wp   ! beyond the left or right wall: its normal
+        end if
+      end do
+    end do
+    do j = 2, mc%nn(2)
+      do i = 1, n1
+        k = i + (j - 1)*n1
+        if (mc%cell(k - n1) /= CELL_SOLID .or. mc%cell(k) /= CELL_SOLID) cycle
+        if (j - 1 >= mc%lo(2) .and. j <= mc%hi(2) .and. i >= mc%lo(1) .and. i <= mc%hi(1)) then
+          v(k) = wall*mc%rvy(k)   ! inside a rigid body
+        else if (j < mc%lo(2) .or. j > mc%hi(2) + 1) then
+          v(k) = 0.0_wp   ! beyond the bottom or top wall
+        end if
+      end do
+    end do
+  end subroutine mac_constrain
 
   subroutine mac_ghost_pressure(mc)
     !! pe: the pressure in water cells, the mean ghost value p_w (1 - 1/theta) of the water
