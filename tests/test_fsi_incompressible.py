@@ -564,14 +564,14 @@ def test_water_falls_freely_through_the_air_a_rigid_body_has_left():
     assert st["x"][nw:, 0].min() > 0.65 and st["x"][:nw, 1].min() < 0.55   # the drop is in the block's old place
 
 
-def drop_next_to_a_resting_block_falls_freely(drop, block, coupling, t_end):
+def drop_next_to_a_resting_block_falls_freely(drop, block, t_end):
     """Water particles filling `drop` (lo, hi corners) fall from rest next to a rigid block at
     rest filling `block`; returns (steps, t, water particles' positions), having asserted that
     every water particle moves at (0, -g t) to 1e-12 m/s."""
     d = H_CELL / 2
     xw = lattice(*drop, d)
     sim = water_and_solid(xw, lattice(*block, d), {"model": "rigid", "density": 2000.0, "velocity": [0.0, 0.0]},
-                          coupling, cg_tolerance=1e-12)
+                          cg_tolerance=1e-12)
     nw = len(xw)
     steps, t = sim.advance(t_end)
     st = sim.state()
@@ -580,27 +580,25 @@ def drop_next_to_a_resting_block_falls_freely(drop, block, coupling, t_end):
     return steps, t, st["x"][:nw]
 
 
-@pytest.mark.parametrize("coupling", ["batty", "mixture"])
-def test_drop_above_a_resting_block_falls_freely_until_it_reaches_its_cell(coupling):
+def test_drop_above_a_resting_block_falls_freely_until_it_reaches_its_cell():
     """A water drop (0.45-0.55 x 0.6-0.7 m) two cells above a rigid block at rest (0.3-0.7 x
     0.4-0.5 m) falls for 0.07 s at v = -g t, to 1e-12 m/s, half a cell short of the block's cell
     row: the air faces between them carry the water's extrapolated velocity; the block's own
     faces keep its normal velocity but are no source of the extrapolation (mixing it in gave
     0.016 m/s, 2.3 % of g t)."""
     steps, _, x = drop_next_to_a_resting_block_falls_freely(((0.45, 0.6), (0.55, 0.7)), ((0.3, 0.4), (0.7, 0.5)),
-                                                            coupling, 0.07)
+                                                            0.07)
     assert steps >= 3 and x[:, 1].min() > 0.55   # still short of the block's cell row
 
 
-@pytest.mark.parametrize("coupling", ["batty", "mixture"])
-def test_drop_beside_a_resting_block_falls_freely(coupling):
+def test_drop_beside_a_resting_block_falls_freely():
     """A water drop (0.55-0.65 x 0.6-0.8 m) one cell to the right of a rigid block at rest
     (0.3-0.5 x 0.2-0.7 m), its top above the block's, falls for 0.1 s at v = -g t, to 1e-12
     m/s, down the block's side: the air faces in the gap carry the water's extrapolated
     velocity, not a mean with the block's top face or its inside (the drop never enters the
     block's cells, so nothing holds it)."""
     steps, _, x = drop_next_to_a_resting_block_falls_freely(((0.55, 0.6), (0.65, 0.8)), ((0.3, 0.2), (0.5, 0.7)),
-                                                            coupling, 0.1)
+                                                            0.1)
     assert steps >= 3 and x[:, 1].min() < 0.56 and x[:, 0].min() > 0.55   # below the block's top, beside it
 
 

@@ -12,7 +12,11 @@ for a plate held by its prescribed anchor). The
 probe is the horizontal displacement of the plate's top-left corner. The published curves
 scatter (peak 0.041-0.048 m at 0.23-0.25 s), so they are used as an envelope: the metric
 `tip_outside_envelope_rms` is the RMS distance of our curve outside the band they span,
-over 0.1 <= t <= 0.5 s. All three runs are gated the same, and drawn side by side.
+over 0.1 <= t <= 0.5 s. All three runs are gated the same, and drawn side by side. The quick
+tier runs the weakly compressible variants at h = 8 mm and the incompressible one at 4 mm, the
+resolution its band gate is set for (issue 37): at 8 mm, under-resolving the 12 mm plate, its
+RMS sits on the 0.005 m gate and crosses it with a 1 % change of the time step
+(docs/notes/incompressible_water_measurements.md, "The quick elastic_obstacle gate").
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ CASE = paths.CASES / "elastic_obstacle.toml"
 
 
 INCOMPRESSIBLE = ("solver.fluid=incompressible", "solver.projection=none")
+INCOMPRESSIBLE_CELL = 0.004   # both tiers: the resolution of the issue's band gate
 LIMITATION: dict[str, str] = {}   # none: the incompressible variant's band gate passes since 0d9a152 (issue 21)
 
 
@@ -46,12 +51,14 @@ def _run(cell: float, contact: bool, out: Path, extra: tuple[str, ...] = ()):
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     cell = 0.008 if ctx.quick else 0.004
-    # suffix -> (contact, extra overrides, run directory, label)
-    variants = {"": (False, (), "continuum", "one continuum"), "_contact": (True, (), "contact", "contact"),
-                "_incompressible": (False, INCOMPRESSIBLE, "incompressible", "incompressible water, one continuum")}
-    outs = parallel.pmap(_run, [(cell, c, ctx.runs_dir / d, x) for c, x, d, _ in variants.values()])
+    # suffix -> (cell, contact, extra overrides, run directory, label)
+    variants = {"": (cell, False, (), "continuum", "one continuum"),
+                "_contact": (cell, True, (), "contact", "contact"),
+                "_incompressible": (INCOMPRESSIBLE_CELL, False, INCOMPRESSIBLE, "incompressible",
+                                    "incompressible water, one continuum")}
+    outs = parallel.pmap(_run, [(h, c, ctx.runs_dir / d, x) for h, c, x, d, _ in variants.values()])
     series = {}
-    for (suffix, (_, _, _, label)), out in zip(variants.items(), outs, strict=True):
+    for (suffix, (h, _, _, _, label)), out in zip(variants.items(), outs, strict=True):
         if isinstance(out, Exception):
             raise RuntimeError(f"the {label} run failed: {out}")
         t, u = out["t"], out["tip"]
@@ -64,7 +71,7 @@ def run(ctx: CheckContext) -> CheckResult:
             Gate.at_least(f"tip_peak_time{suffix}", t[i], 0.20), Gate.at_most(f"tip_peak_time{suffix}", t[i], 0.28),
             Gate.at_most(f"tip_outside_envelope_rms{suffix}", res.metrics[f"tip_outside_envelope_rms{suffix}"],
                          0.005, known_limitation=LIMITATION.get(suffix, ""))]
-        series[f"CPDI, {label}"] = (t, u)
+        series[f"CPDI, {label} (h = {h * 1e3:g} mm)"] = (t, u)
         s = out["summary"]
         res.notes.append(f"{label}: {s['particles']} particles, {s['steps']} steps, {s['wall_s']:.0f} s wall.")
     tt = np.linspace(0.0, 0.6, 300)
@@ -81,7 +88,7 @@ def run(ctx: CheckContext) -> CheckResult:
     ax.set_xlabel("t [s]")
     ax.set_ylabel("tip displacement u_x [m]")
     ax.set_xlim(0, 0.6)
-    ax.set_title(f"Elastic obstacle, top-left corner (h = {cell * 1e3:g} mm)")
+    ax.set_title("Elastic obstacle, top-left corner")
     ax.text(0.98, 0.03, f"outside-band RMS: {res.metrics['tip_outside_envelope_rms']:.4f} m (continuum), "
             f"{res.metrics['tip_outside_envelope_rms_contact']:.4f} m (contact), "
             f"{res.metrics['tip_outside_envelope_rms_incompressible']:.4f} m (incompressible)", transform=ax.transAxes,
