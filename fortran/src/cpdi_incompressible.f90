@@ -23,7 +23,7 @@ module cpdi_incompressible
                          CPDI_ERR_NAN
   use cpdi_grid, only: grid_t, hold_on_walls, grid_box, grid_apply_walls, WALL_OPEN, GRID_PAD
   use cpdi_particles, only: particles_t
-  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED
+  use cpdi_shape, only: shape_t, shape_alloc, shape_compute, SHAPE_FAIL_INVERTED
   use cpdi_schedule, only: NCHUNK, chunk_range, strips_t, strips_alloc, strips_build, strip_start, block_next, &
                            blocks_t, blocks_region, blocks_enter
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
@@ -492,25 +492,43 @@ contains
     end do
   contains
     subroutine scatter_mv(sh, fm, fv)
-      !! Mass (fm) and volume (fv) of particle ip to a face lattice.
+      !! Mass (fm) and volume (fv) of particle ip to a face lattice (slots as in scatter).
       type(shape_t), intent(in) :: sh
       real(wp), intent(inout) :: fm(:), fv(:)
-      real(wp) :: w, gxk, gyk
-      do a = 1, shape_count(sh, ip)
-        call shape_slot(sh, ip, a, k, w, gxk, gyk)
-        fm(k) = fm(k) + w*mp
-        fv(k) = fv(k) + w*vp
+      real(wp) :: w
+      integer(ik) :: col, kk
+      do a = 1, sh%ns
+        if (a <= sh%nm) then
+          kk = sh%idx(a, ip)
+          w = sh%w(a, ip)
+        else
+          col = sh%ovf(ip)
+          if (col == 0) exit
+          kk = sh%pidx(a - sh%nm, col)
+          w = sh%pw(a - sh%nm, col)
+        end if
+        fm(kk) = fm(kk) + w*mp
+        fv(kk) = fv(kk) + w*vp
       end do
     end subroutine scatter_mv
 
     subroutine scatter_v(sh, fv)
-      !! Volume of particle ip to a face lattice.
+      !! Volume of particle ip to a face lattice (slots as in scatter).
       type(shape_t), intent(in) :: sh
       real(wp), intent(inout) :: fv(:)
-      real(wp) :: w, gxk, gyk
-      do a = 1, shape_count(sh, ip)
-        call shape_slot(sh, ip, a, k, w, gxk, gyk)
-        fv(k) = fv(k) + w*vp
+      real(wp) :: w
+      integer(ik) :: col, kk
+      do a = 1, sh%ns
+        if (a <= sh%nm) then
+          kk = sh%idx(a, ip)
+          w = sh%w(a, ip)
+        else
+          col = sh%ovf(ip)
+          if (col == 0) exit
+          kk = sh%pidx(a - sh%nm, col)
+          w = sh%pw(a - sh%nm, col)
+        end if
+        fv(kk) = fv(kk) + w*vp
       end do
     end subroutine scatter_v
 
@@ -530,7 +548,7 @@ contains
       ly = p%L(c + 2, ip)
       nx = gl%nn(1)
       gb = gravity(c) + p%bf(c, ip)
-      do a = 1, sh%nm + sh%ns - sh%nm
+      do a = 1, sh%ns
         if (a <= sh%nm) then
           kk = sh%idx(a, ip)
           w = sh%w(a, ip)
