@@ -422,6 +422,37 @@ contains
     end subroutine mark_rigid
   end subroutine p2g_faces
 
+  pure subroutine face_slot(sh, ip, a, k, w, gx, gy, ok)
+    !! Node, weight and gradient of slot a of particle ip (shape_slot's order: main slot a, or
+    !! pool slot a - nm); ok = .false. past its last slot. In this module so that the transfers'
+    !! loops inline it (shape_slot, in cpdi_shape, was called per slot).
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip, a
+    integer(ik), intent(out) :: k
+    real(wp), intent(out) :: w, gx, gy
+    logical, intent(out) :: ok
+    integer(ik) :: c
+    ok = .true.
+    if (a <= sh%nm) then
+      k = sh%idx(a, ip)
+      w = sh%w(a, ip)
+      gx = sh%gx(a, ip)
+      gy = sh%gy(a, ip)
+      return
+    end if
+    c = sh%ovf(ip)
+    ok = c /= 0
+    k = 0
+    w = 0.0_wp
+    gx = 0.0_wp
+    gy = 0.0_wp
+    if (.not. ok) return
+    k = sh%pidx(a - sh%nm, c)
+    w = sh%pw(a - sh%nm, c)
+    gx = sh%pgx(a - sh%nm, c)
+    gy = sh%pgy(a - sh%nm, c)
+  end subroutine face_slot
+
   integer(ik) function p2g_rows(ic, p, g, ip) result(span)
     !! Sets prow(ip), the lowest row (0-based, of the faces and cells, which share one numbering)
     !! that particle ip's P2G writes: its stencils on both face lattices, its centre's cell and
@@ -466,8 +497,8 @@ contains
         call scatter_v(ic%shu, ic%rb%uvb(:, ic%rb%slot(ip)))
         call scatter_v(ic%shv, ic%rb%vvb(:, ic%rb%slot(ip)))
       else if (solid) then
-        call scatter_mv(ic%shu, ic%usm, ic%uvs)
-        call scatter_mv(ic%shv, ic%vsm, ic%vvs)
+        call scatter_v(ic%shu, ic%uvs, ic%usm)
+        call scatter_v(ic%shv, ic%vvs, ic%vsm)
       else
         call scatter_v(ic%shu, ic%uvw)
         call scatter_v(ic%shv, ic%vvw)
@@ -491,43 +522,19 @@ contains
       if (ic%coupled .and. .not. solid) ic%fillw(k) = ic%fillw(k) + wc(a)*vp*av
     end do
   contains
-    subroutine scatter_mv(sh, fm, fv)
-      !! Mass (fm) and volume (fv) of particle ip to a face lattice (slots as in scatter).
-      type(shape_t), intent(in) :: sh
-      real(wp), intent(inout) :: fm(:), fv(:)
-      real(wp) :: w
-      integer(ik) :: col, kk
-      do a = 1, sh%ns
-        if (a <= sh%nm) then
-          kk = sh%idx(a, ip)
-          w = sh%w(a, ip)
-        else
-          col = sh%ovf(ip)
-          if (col == 0) exit
-          kk = sh%pidx(a - sh%nm, col)
-          w = sh%pw(a - sh%nm, col)
-        end if
-        fm(kk) = fm(kk) + w*mp
-        fv(kk) = fv(kk) + w*vp
-      end do
-    end subroutine scatter_mv
-
-    subroutine scatter_v(sh, fv)
-      !! Volume of particle ip to a face lattice (slots as in scatter).
+    subroutine scatter_v(sh, fv, fm)
+      !! Volume (fv) and, if given, mass (fm) of particle ip to a face lattice (slots as in
+      !! scatter).
       type(shape_t), intent(in) :: sh
       real(wp), intent(inout) :: fv(:)
-      real(wp) :: w
-      integer(ik) :: col, kk
+      real(wp), intent(inout), optional :: fm(:)
+      real(wp) :: w, gxk, gyk
+      integer(ik) :: kk
+      logical :: ok
       do a = 1, sh%ns
-        if (a <= sh%nm) then
-          kk = sh%idx(a, ip)
-          w = sh%w(a, ip)
-        else
-          col = sh%ovf(ip)
-          if (col == 0) exit
-          kk = sh%pidx(a - sh%nm, col)
-          w = sh%pw(a - sh%nm, col)
-        end if
+        call face_slot(sh, ip, a, kk, w, gxk, gyk, ok)
+        if (.not. ok) exit
+        if (present(fm)) fm(kk) = fm(kk) + w*mp
         fv(kk) = fv(kk) + w*vp
       end do
     end subroutine scatter_v
@@ -541,23 +548,17 @@ contains
       type(grid_t), intent(in) :: gl
       integer(ik), intent(in) :: c
       real(wp), intent(inout) :: fm(:), fq(:), fi(:)
-      real(wp) :: v, lx, ly, gb, w, mom
-      integer(ik) :: col, nx, kk
+      real(wp) :: v, lx, ly, gb, w, mom, gxk, gyk
+      integer(ik) :: nx, kk
+      logical :: ok
       v = p%v(c, ip)
       lx = p%L(c, ip)
       ly = p%L(c + 2, ip)
       nx = gl%nn(1)
       gb = gravity(c) + p%bf(c, ip)
       do a = 1, sh%ns
-        if (a <= sh%nm) then
-          kk = sh%idx(a, ip)
-          w = sh%w(a, ip)
-        else
-          col = sh%ovf(ip)
-          if (col == 0) exit
-          kk = sh%pidx(a - sh%nm, col)
-          w = sh%pw(a - sh%nm, col)
-        end if
+        call face_slot(sh, ip, a, kk, w, gxk, gyk, ok)
+        if (.not. ok) exit
         mom = v
         if (apic) mom = mom + lx*((gl%gorig(1) + real(mod(kk - 1, nx), wp)*gl%h) - p%x(1, ip)) &
                             + ly*((gl%gorig(2) + real((kk - 1)/nx, wp)*gl%h) - p%x(2, ip))
@@ -1215,37 +1216,27 @@ contains
 
   pure subroutine gather(sh, ip, fv, fc, fd, vn, vc, dv, grad)
     !! One velocity component at particle ip from its face lattice: velocity vn, correction
-    !! velocity vc, FLIP increment dv (from fv, fc, fd) and the component's gradient. The
-    !! slots in shape_slot's order (main, then pool), read from the arrays directly.
+    !! velocity vc, FLIP increment dv (from fv, fc, fd) and the component's gradient, slot by
+    !! slot in shape_slot's order (face_slot).
     type(shape_t), intent(in) :: sh
     integer(ik), intent(in) :: ip
     real(wp), intent(in) :: fv(:), fc(:), fd(:)
     real(wp), intent(out) :: vn, vc, dv, grad(2)
-    integer(ik) :: a, c, k
-    real(wp) :: w
+    integer(ik) :: a, k
+    real(wp) :: w, gxk, gyk
+    logical :: ok
     vn = 0.0_wp
     vc = 0.0_wp
     dv = 0.0_wp
     grad = 0.0_wp
-    do a = 1, sh%nm
-      k = sh%idx(a, ip)
-      w = sh%w(a, ip)
+    do a = 1, sh%ns
+      call face_slot(sh, ip, a, k, w, gxk, gyk, ok)
+      if (.not. ok) exit
       vn = vn + w*fv(k)
       vc = vc + w*fc(k)
       dv = dv + w*fd(k)
-      grad(1) = grad(1) + fv(k)*sh%gx(a, ip)
-      grad(2) = grad(2) + fv(k)*sh%gy(a, ip)
-    end do
-    c = sh%ovf(ip)
-    if (c == 0) return
-    do a = 1, sh%ns - sh%nm
-      k = sh%pidx(a, c)
-      w = sh%pw(a, c)
-      vn = vn + w*fv(k)
-      vc = vc + w*fc(k)
-      dv = dv + w*fd(k)
-      grad(1) = grad(1) + fv(k)*sh%pgx(a, c)
-      grad(2) = grad(2) + fv(k)*sh%pgy(a, c)
+      grad(1) = grad(1) + fv(k)*gxk
+      grad(2) = grad(2) + fv(k)*gyk
     end do
   end subroutine gather
 
