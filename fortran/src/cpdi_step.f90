@@ -23,7 +23,7 @@ module cpdi_step
   !! water replaces the whole sequence by cpdi_incompressible (sim_step: the one place where
   !! the two water models part).
   use, intrinsic :: iso_fortran_env, only: int64
-  !$ use omp_lib, only: omp_get_max_threads
+  !$ use omp_lib, only: omp_get_max_threads, omp_set_num_threads
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, &
                          CPDI_ERR_CFL
@@ -432,7 +432,7 @@ contains
     type(status_t), intent(inout) :: st
     real(wp) :: dt, dtc
     integer(ik) :: bad, fail
-    integer :: nthr, team
+    integer :: nthr, team, maxthr
     integer(int64) :: c0, c1, rate
     integer(int64) :: t0
     character(len=300) :: buf
@@ -466,14 +466,28 @@ contains
     if (allocated(s%vtab)) call motion_apply(s%vtab, s%t, dt, s%mats, s%p, s%inc%rvel)   ! velocity tables
     proj = s%opt%projection /= PROJ_NONE
     if (s%opt%fluid == FLUID_INCOMPRESSIBLE) then
+      ! The water's step runs many short parallel regions (its transfers, the multigrid): beside
+      ! a busy process a thread waiting at their barriers can make two threads far slower than
+      ! one. The same choice as the explicit step (team_for_step): the faster team by measured
+      ! step time, the other probed now and then. Results do not depend on the team (bitwise).
+      nthr = 1
+      maxthr = 1
+      !$ maxthr = omp_get_max_threads()
+      !$ nthr = max(1, min(maxthr, s%p%n/max(1, s%min_per_thread), MAX_THREADS))
+      team = team_for_step(s, nthr)
+      !$ if (abs(team) == 1) call omp_set_num_threads(1)
+      call system_clock(c0)
       if (s%inc%coupled) then
         call fsi_step(s, dt, st)   ! the water's step, and its force on the solids (p%aw)
-        if (associated(s%sub)) then   ! the deformable solids' own steps under that force
-          if (st%ok()) call subcycle_solids(s, dt, st)
-          if (st%ok()) call fsi_finish(s, dt, st)
-        end if
       else
         call incomp_step(s%inc, s%g, s%p, s%opt%flip, s%opt%gravity, dt, s%steps, s%diag, s%timers, s%smax, st)
+      end if
+      call system_clock(c1, rate)
+      !$ if (abs(team) == 1) call omp_set_num_threads(maxthr)
+      if (st%ok() .and. team /= 0) call team_measured(s, team, real(c1 - c0, wp)/real(rate, wp))
+      if (s%inc%coupled .and. associated(s%sub)) then   ! the deformable solids' own steps under that force
+        if (st%ok()) call subcycle_solids(s, dt, st)
+        if (st%ok()) call fsi_finish(s, dt, st)
       end if
       if (.not. st%ok()) return
       s%diag(11) = s%smax
