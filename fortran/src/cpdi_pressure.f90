@@ -51,6 +51,7 @@ module cpdi_pressure
   real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
   integer(ik), parameter, public :: PRECOND_MIC0 = 0       !! MIC(0): incomplete Cholesky
   integer(ik), parameter, public :: PRECOND_MULTIGRID = 1  !! one geometric multigrid V-cycle
+  integer(ik), parameter :: CG_PAR_MIN = 8192            !! physical cells above which the CG's row loops are threaded
 
   type, public :: mac_t
     !! Staggered-grid fields over the padded node numbering (one entry per node index).
@@ -295,6 +296,9 @@ contains
     real(wp), intent(inout) :: y(:)
     integer(ik) :: i, j, c, n1
     n1 = mc%nn(1)
+    ! rows in parallel: each cell's value is computed as serially, so any thread count gives
+    ! the same bits
+    !$omp parallel do if (cg_parallel(mc)) default(shared) private(i, c) schedule(static)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
@@ -306,6 +310,7 @@ contains
                + mc%aj(c - n1)*x(c - n1)
       end do
     end do
+    !$omp end parallel do
     if (mc%nlr > 0) call lowrank_apply(mc, x, y)
   end subroutine mac_apply
 
@@ -377,17 +382,30 @@ contains
   end subroutine mic0_apply
 
   real(wp) function fdot(mc, x, y)
-    !! Sum of x y over the physical cells (x and y vanish outside the water).
+    !! Sum of x y over the physical cells (x and y vanish outside the water): each row's dot
+    !! product (in parallel), then the rows in order, as the serial loop summed them.
     type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: x(:), y(:)
+    real(wp) :: row(mc%lo(2):mc%hi(2))
     integer(ik) :: j, c0, c1
-    fdot = 0.0_wp
+    !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
     do j = mc%lo(2), mc%hi(2)
       c0 = mc%lo(1) + (j - 1)*mc%nn(1)
       c1 = mc%hi(1) + (j - 1)*mc%nn(1)
-      fdot = fdot + dot_product(x(c0:c1), y(c0:c1))
+      row(j) = dot_product(x(c0:c1), y(c0:c1))
+    end do
+    !$omp end parallel do
+    fdot = 0.0_wp
+    do j = mc%lo(2), mc%hi(2)
+      fdot = fdot + row(j)
     end do
   end function fdot
+
+  pure logical function cg_parallel(mc)
+    !! The CG's row loops run threaded on grids of more than CG_PAR_MIN physical cells.
+    type(mac_t), intent(in) :: mc
+    cg_parallel = (mc%hi(1) - mc%lo(1) + 1)*(mc%hi(2) - mc%lo(2) + 1) > CG_PAR_MIN
+  end function cg_parallel
 
   subroutine mac_solve(mc, tol, maxit, converged)
     !! Solve A p = b by preconditioned CG (mc%precond) from p = 0. Sets iters and resid;
@@ -434,12 +452,14 @@ contains
     do it = 1, maxit
       call mac_apply(mc, mc%s, mc%q)
       alpha = rz/fdot(mc, mc%s, mc%q)
+      !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
       do j = mc%lo(2), mc%hi(2)
         c0 = mc%lo(1) + (j - 1)*mc%nn(1)
         c1 = mc%hi(1) + (j - 1)*mc%nn(1)
         mc%p(c0:c1) = mc%p(c0:c1) + alpha*mc%s(c0:c1)
         mc%r(c0:c1) = mc%r(c0:c1) - alpha*mc%q(c0:c1)
       end do
+      !$omp end parallel do
       if (mc%nfloat > 0) call remove_means(mc, mc%r)
       mc%iters = it
       rnorm = sqrt(fdot(mc, mc%r, mc%r))
@@ -451,11 +471,13 @@ contains
       if (.not. (mc%resid < huge(1.0_wp))) exit
       call mac_precondition(mc, .false.)
       rzn = fdot(mc, mc%r, mc%z)
+      !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
       do j = mc%lo(2), mc%hi(2)
         c0 = mc%lo(1) + (j - 1)*mc%nn(1)
         c1 = mc%hi(1) + (j - 1)*mc%nn(1)
         mc%s(c0:c1) = mc%z(c0:c1) + (rzn/rz)*mc%s(c0:c1)
       end do
+      !$omp end parallel do
       rz = rzn
     end do
     if (converged .and. mc%nfloat > 0) call fix_reference(mc)
