@@ -470,11 +470,11 @@ contains
       ! a busy process a thread waiting at their barriers can make two threads far slower than
       ! one. The same choice as the explicit step (team_for_step): the faster team by measured
       ! step time, the other probed now and then. Results do not depend on the team (bitwise).
-      nthr = 1
+      ! (No particles-per-thread floor: the water's loops have their own size thresholds, and
+      ! the measured choice covers small runs too.)
       maxthr = 1
       !$ maxthr = omp_get_max_threads()
-      !$ nthr = max(1, min(maxthr, s%p%n/max(1, s%min_per_thread), MAX_THREADS))
-      team = team_for_step(s, nthr)
+      team = team_for_step(s, maxthr)
       !$ if (abs(team) == 1) call omp_set_num_threads(1)
       call system_clock(c0)
       if (s%inc%coupled) then
