@@ -45,12 +45,19 @@ def run_checks(names: list[str], out_dir: Path, quick: bool, progress: bool) -> 
 
     results = []
     pool = parallel.active()
+    mods = {name: importlib.import_module(f"harness.checks.{name}") for name in names}
+    ctxs = {name: CheckContext(out_dir=out_dir, quick=quick, runs_dir=paths.work_root() / "runs" / "verify" / name,
+                               progress=progress) for name in names}
+    for name, mod in mods.items():   # a check's longest runs start now, beside every check before it
+        ctxs[name].runs_dir.mkdir(parents=True, exist_ok=True)
+        if hasattr(mod, "start_early"):
+            try:
+                mod.start_early(ctxs[name])
+            except Exception:   # only a head start: the check's run meets the same error and reports it
+                ctxs[name].early.clear()
     with _check_bar(len(names), progress) as bar:
         for name in names:
-            mod = importlib.import_module(f"harness.checks.{name}")
-            ctx = CheckContext(out_dir=out_dir, quick=quick, runs_dir=paths.work_root() / "runs" / "verify" / name,
-                               progress=progress)
-            ctx.runs_dir.mkdir(parents=True, exist_ok=True)
+            mod, ctx = mods[name], ctxs[name]
             bar.set_postfix_str(f"running {name}")
             tqdm.write(f"[verify] {name}: {mod.REQUIREMENT}", file=sys.stdout)
             t0 = time.perf_counter()

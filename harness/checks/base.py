@@ -116,6 +116,8 @@ class CheckContext:
     quick: bool
     runs_dir: Path  # scratch directory for the check's simulation runs
     progress: bool = True
+    # runs started before the first check by the check's start_early(ctx) (parallel.submit), by name
+    early: dict[str, Any] = field(default_factory=dict)
 
     @property
     def fig_dir(self) -> Path:
