@@ -237,21 +237,27 @@ EARLY_NAME = "early_probe"
 _order: list[str] = []
 
 
-def start_early(ctx) -> None:
-    _order.append("start_early")
-    ctx.early["run"] = parallel.submit(_stamped, (0.0,))
+class _EarlyCheck:
+    """A check module whose run comes from its start_early."""
 
+    REQUIREMENT = "a check that takes its run from start_early"
 
-def run(ctx) -> CheckResult:
-    _order.append("run")
-    res = CheckResult(EARLY_NAME, "a check that takes its run from start_early")
-    res.metrics["early_pid"] = float(ctx.early["run"].result()[0])
-    res.gates.append(Gate.at_most("zero", 0.0, 0.0))
-    return res
+    @staticmethod
+    def start_early(ctx) -> None:
+        _order.append("start_early")
+        ctx.early["run"] = parallel.submit(_stamped, (0.0,))
+
+    @staticmethod
+    def run(ctx) -> CheckResult:
+        _order.append("run")
+        res = CheckResult(EARLY_NAME, _EarlyCheck.REQUIREMENT)
+        res.metrics["early_pid"] = float(ctx.early["run"].result()[0])
+        res.gates.append(Gate.at_most("zero", 0.0, 0.0))
+        return res
 
 
 def test_verify_starts_every_early_run_before_the_first_check(tmp_path, monkeypatch) -> None:
-    monkeypatch.setitem(sys.modules, f"harness.checks.{EARLY_NAME}", sys.modules[__name__])
+    monkeypatch.setitem(sys.modules, f"harness.checks.{EARLY_NAME}", _EarlyCheck)
     monkeypatch.setitem(sys.modules, f"harness.checks.{NAME}_first", _FirstCheck)
     monkeypatch.setattr("harness.paths.work_root", lambda: tmp_path)
     _order.clear()
