@@ -491,6 +491,26 @@ def _plot_scaling(scal: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+MG_ITERATIONS_MAX = 30   # issue 38: multigrid-CG iterations per solve below 30 from H/30 to H/120
+PRESSURE_CELLS = (0.01, 0.005, 0.0025)   # H/30, H/60, H/120 of the Lobovsky dam break
+
+
+def pressure_solver_rows(cells, steps: int, say) -> list[dict]:
+    """MIC(0)-CG against multigrid-CG in one run (tools/pressure_bench.py): the Lobovsky dam break
+    stepped to t* = 1, then the same steps from that state with each preconditioner, per cell size."""
+    from tools import pressure_bench
+
+    rows = []
+    for cell in cells:
+        r = pressure_bench.measure(cell, 1.0, steps)
+        m, g = r["mic0"], r["multigrid"]
+        say(f"pressure H/{r['H_over_h']} ({r['water_cells']} water cells): MIC(0) {m['iterations_mean']:.1f} it, "
+            f"{1e3 * m['solve_s_per_step']:.1f} ms a step; multigrid {g['iterations_mean']:.1f} it "
+            f"(max {g['iterations_max']}), {1e3 * g['solve_s_per_step']:.1f} ms a step")
+        rows.append(r)
+    return rows
+
+
 def main(quick: bool = False, base: str | None = None) -> int:
     from harness import provenance
 
@@ -542,6 +562,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         based = base_rows(base, 3 if quick else BASE_REPEATS, say) if base else None
         water = bench_water.run(quick)
         fsi, fsi_gates = bench_fsi.run(quick, base, say)
+        pressure = pressure_solver_rows(PRESSURE_CELLS[:2] if quick else PRESSURE_CELLS, 5 if quick else 20, say)
     except RuntimeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -557,6 +578,9 @@ def main(quick: bool = False, base: str | None = None) -> int:
     gates["water_incompressible_speedup_real_k"] = {"value": water[2]["speedup_of_incompressible"], "min": 20.0,
                                                     "pass": water[2]["speedup_of_incompressible"] >= 20.0}
     gates.update(fsi_gates)
+    worst = max(r["multigrid"]["iterations_max"] for r in pressure)
+    gates["multigrid_iterations_max"] = {"value": float(worst), "max": MG_ITERATIONS_MAX,
+                                         "pass": worst < MG_ITERATIONS_MAX}
     for k, g in gates.items():
         bound = f"<= {g['max']}" if "max" in g else f">= {g['min']}"
         value = "n/a" if g["value"] is None else f"{g['value']:.3f}"
@@ -565,7 +589,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
             "provenance": provenance.collect(REPO, REPO / "build" / "fortran"), "quick": quick,
             "machine": {"start": machine_start, "end": _machine()}, "loaded": loaded, "scaling": scal,
             "speedup_windows": windows,
-            "base": based, "gates": gates, "water_models": water, "fsi": fsi}
+            "base": based, "gates": gates, "water_models": water, "fsi": fsi, "pressure_solvers": pressure}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")
     _plot(rows, OUT / "bench.png")
     _plot_phases(rows, OUT / "phases.png")
