@@ -359,11 +359,15 @@ def _stop(hogs: list[subprocess.Popen]) -> None:
 
 
 def _machine() -> dict:
-    from harness import available_cores
+    """The machine, and the OpenMP settings the solver loads with here: the user's, else the
+    defaults harness.solver sets as it loads the extension (harness.openmp_defaults)."""
+    from harness import available_cores, openmp_defaults
+
+    omp = {**os.environ, **openmp_defaults(os.environ)}  # as harness.solver applies them
     return {"affinity": sorted(os.sched_getaffinity(0)), "available_cores": available_cores(),
             "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg()),
-            "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY"), "GOMP_SPINCOUNT": os.environ.get("GOMP_SPINCOUNT"),
-            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
+            "OMP_WAIT_POLICY": omp.get("OMP_WAIT_POLICY"), "GOMP_SPINCOUNT": omp.get("GOMP_SPINCOUNT"),
+            "OMP_NUM_THREADS": omp.get("OMP_NUM_THREADS")}
 
 
 def loaded_rows(repeats: int, say) -> list[dict]:
