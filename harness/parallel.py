@@ -128,16 +128,18 @@ class Cluster:
         self.reruns += [Rerun(f"{name}[{i}]", starts[k], i, self.context) for i, k in enumerate(keys) if starts[k] > 1]
         return out
 
-    def submit(self, fn: Callable[..., Any], item: Any) -> Pending:
+    def submit(self, fn: Callable[..., Any], item: Any, priority: float = 1.0) -> Pending:
         """fn(*item) started now, ahead of the maps that follow (a long run that would otherwise be
-        the last to finish): its value comes from ``Pending.result()``. Serially, it runs then."""
+        the last to finish), the highest ``priority`` (> 0: before any map's task; give the run's
+        estimated cost, so the longest starts first) first: its value comes from
+        ``Pending.result()``. Serially, it runs then."""
         self.tasks += 1
         name = getattr(fn, "__name__", "task")
         if self.serial:
             return Pending(self, name, fn, item)
         token = uuid.uuid4().hex[:8]
         key, topic = f"{name}-{token}-early", f"cpdi-pmap-{token}"
-        future = self.client.submit(_task, fn, item, topic, key=key, priority=1)
+        future = self.client.submit(_task, fn, item, topic, key=key, priority=max(int(priority), 1))
         return Pending(self, name, fn, item, future, topic, key)
 
     def _starts(self, topic: str) -> Counter | None:
@@ -219,11 +221,11 @@ def pmap(fn: Callable[..., Any], items: Iterable[Any], workers: int | None = Non
         return c.map(fn, items)
 
 
-def submit(fn: Callable[..., Any], item: Any) -> Pending:
+def submit(fn: Callable[..., Any], item: Any, priority: float = 1.0) -> Pending:
     """fn(*item) started now on the active cluster (Cluster.submit); outside one it runs when its
     result is asked for."""
     if _active is not None:
-        return _active.submit(fn, item)
+        return _active.submit(fn, item, priority)
     return Pending(Cluster("serial", 1), getattr(fn, "__name__", "task"), fn, item)
 
 
