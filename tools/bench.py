@@ -177,9 +177,9 @@ def core_control() -> float:
 def round_trip_control() -> float:
     """What moving a cache line between the two cores costs now [ns]: the median of
     ROUND_TRIP_BURSTS bursts of ROUND_TRIP_ITERS round trips between two threads of a fresh
-    process (solver.core_round_trip). About 55 ns on this VM; 345 ns in the stretches in which
-    the host puts its two vCPUs apart, where the 2-thread step pays for every line its phases
-    hand from one core to the other (docs/notes/threads.md)."""
+    process (solver.core_round_trip). It costs several times more in the stretches in which the
+    host puts its two vCPUs apart, where the 2-thread step pays for every line its phases hand
+    from one core to the other (the figures: docs/notes/threads.md)."""
     code = ("import json, statistics; from harness import solver; "
             f"print(json.dumps({{'ns': statistics.median(solver.core_round_trip({ROUND_TRIP_ITERS}) "
             f"for _ in range({ROUND_TRIP_BURSTS}))}}))")
@@ -202,27 +202,27 @@ def speedup_windows(size: str, say, need: int = WINDOWS_VALID, most: int = WINDO
 
     A window runs, back to back: the core control, 1 thread and 2 threads in turns of
     bench_interleave.CHUNK steps (two fresh processes, one stepping at a time: a spell of the host
-    during the runs falls on both; run one after the other, windows whose controls both read
-    1.86-2.24 gave 1.38 and 1.41 at e67bb98 beside 1.84-2.05), the core control again. A shared VM
+    during the runs falls on both; run one after the other, windows with good controls on both
+    sides still gave outlying speed-ups: docs/notes/threads.md), the core control again. A shared VM
     has spells in which its two vCPUs deliver one core's work (seen here: two independent processes
     each at half speed); a window counts when both its controls reach CONTROL_MIN (so a spell that
     starts or ends during the timed runs is caught on one side), and the gate takes the median
     speed-up of the first `need` such windows (at most `most` windows are tried). Every window is
-    kept. The runs of a window are WINDOW_STEPS long (300 at 32k, 0.9 s on one thread): at 100 steps
-    a window was one 0.3 s pair, and its readings spread from 1.47 to 2.31 on one idle host.
+    kept. The runs of a window are WINDOW_STEPS long: a window of a third as many steps was one
+    short pair, and its readings spread widely on an idle host (docs/notes/threads.md).
 
-    The host also has spells (3-26 s, about a fifth of the time on this VM) in which it keeps two
-    full vCPUs but places them where a cache-line round trip takes 345 ns instead of 55 ns; a
-    2-thread step hands lines between the cores at every phase and loses about a tenth of its
-    speed-up there, which no busy-loop control sees. So each control also measures that round
+    The host also has spells in which it keeps two full vCPUs but places them where a cache-line
+    round trip takes several times longer; a 2-thread step hands lines between the cores at every
+    phase and loses part of its speed-up there, which no busy-loop control sees (how long, how
+    often and how much: docs/notes/threads.md). So each control also measures that round
     trip (round_trip_control), and a window counts only where both of its round trips are within
     ROUND_TRIP_FACTOR of the best the bench has seen (every window is judged again when a better
     one shows). The windows left out for it are kept and their median is reported
     (speedup_far_median).
 
     The control is compute-bound (core_control, busy loops) on purpose. It was two independent
-    1-thread solver runs: those compete for memory bandwidth and cache and reached only
-    1.70-1.91x at 32k on a machine that gave the 2-thread run 1.85-2.03x, so it measured memory
+    1-thread solver runs: those compete for memory bandwidth and cache and read lower than the
+    2-thread run's own speed-up on the same machine (docs/notes/threads.md), so it measured memory
     as well as cores. The solver's own memory-bound scaling is what the gate judges; a control
     that shares that limit would excuse it."""
     from tools import bench_interleave
@@ -376,9 +376,8 @@ def loaded_rows(repeats: int, say) -> list[dict]:
 
     The two runs of a pair are fresh processes that step in turns of bench_interleave.CHUNK steps
     (bench_interleave.pair), not one after the other: the host has stretches of seconds in which a
-    process beside a busy loop runs 1.5x slower (a busy loop beside one: 0.20 s, then 0.30-0.33 s
-    for seconds on end; measured at 31df99f), and a 1-thread run in one state with a 2-thread run in
-    the other read 1.46 where both ran the same 1-thread steps (per-step times 6 ms against 9 ms;
+    process beside a busy loop runs markedly slower, and a 1-thread run in one state with a 2-thread
+    run in the other read a large ratio where both ran the same 1-thread steps (the figures:
     docs/notes/threads.md). In turns, a spell falls on both runs alike."""
     from tools import bench_interleave
 

@@ -147,7 +147,8 @@ contains
     !! Orphaned worksharing (a static split of the nodes; no barrier at its end: the
     !! caller's next worksharing loop or barrier orders it). A routine of its own because
     !! inlined into p2g, beside the strip hand-out, this loop spilled its pointers and
-    !! strides to vector registers (one thread, 32k CPDI: P2G 10 % slower).
+    !! strides to vector registers, and P2G on one thread slowed (measured:
+    !! docs/notes/threads.md, "One thread after the change").
     type(grid_t), intent(inout) :: g
     integer(ik), intent(in) :: k0, k1
     call clear_fields(k0, k1, g%nnodes, g%nf, g%m, g%px, g%py, g%fx, g%fy)
