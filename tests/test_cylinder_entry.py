@@ -70,3 +70,45 @@ def test_window_means_recover_a_force_through_a_staircase():
     np.testing.assert_allclose(cs, exact, rtol=0.02)
     # and without the alternation to round-off and the within-step slope
     np.testing.assert_allclose(ce.window_means(t, q * mean, edges), exact, rtol=1e-4)
+
+
+def _added_mass_ratio(h: float, tmp_path) -> float:
+    """The case's cylinder, half under the resting surface (centre on it), accelerated from rest to 0.5 m/s
+    down in 2 ms (10 fixed steps): the water's force during the ramp over (rho pi R^2 / 2) * acceleration,
+    the added mass of the half-submerged circle with the free surface's potential 0 (the full circle's in an
+    unbounded fluid, halved); steps 2-10 (the first sees half the velocity change: each step moves the body
+    with the table's mean velocity over it)."""
+    import re
+
+    from harness import cases, runner
+
+    tr, vmax, r = 0.002, 0.5, 0.1
+    txt = (ce.CASE).read_text().replace("velocity = [0.0, -5.0]",
+                                        f"velocity_table = [[0.0, 0.0, 0.0], [{tr}, 0.0, {-vmax}]]")
+    m = re.search(r"vertices = (\[\[.*\]\]) \}", txt)
+    verts = [[x, y - r] for x, y in eval(m.group(1))]   # noqa: S307 - the case's own numbers
+    txt = txt.replace(m.group(1), "[" + ", ".join(f"[{x:.9g}, {y:.9g}]" for x, y in verts) + "]")
+    path = tmp_path / f"am_{h:g}.toml"
+    path.write_text(txt)
+    case = cases.load(path, [f"grid.cell={h}", f"solver.t_end={tr}", f"solver.dt={tr / 10}",
+                             f"solver.output_every={tr}", f"solver.series_every={tr / 4}"])
+    sim, parts = runner.build(case)
+    loads = runner.WaterLoads(case, parts)
+    fs, t = [], 0.0
+    try:
+        while t < tr * (1 - 1e-12):
+            _, t = sim.advance(tr, max_steps=1, land=True)
+            fs.append(2.0 * loads.evaluate(sim, sim.state()["x"])["water_fy_cylinder"])
+    finally:
+        sim.close()
+    assert len(fs) == 10
+    return float(np.mean(fs[1:]) / (ce.RHO * math.pi * r**2 / 2 * vmax / tr))
+
+
+def test_half_submerged_cylinder_has_the_added_mass_of_half_a_circle(tmp_path):
+    # the loads on the case's prescribed cylinder converge to rho pi R^2 / 2 with h: measured 1.286 / 1.152 at
+    # h = 0.02 / 0.01 (1.083, 1.052 at 0.005, 0.0025, not run here; Aitken's limit 1.03, the tank's walls
+    # adding a little); the staircase adds mass
+    coarse, fine = _added_mass_ratio(0.02, tmp_path), _added_mass_ratio(0.01, tmp_path)
+    assert 1.0 < fine < 1.2
+    assert fine - 1.0 < 0.75 * (coarse - 1.0)
