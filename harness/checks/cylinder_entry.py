@@ -33,7 +33,7 @@ how); its range and the scatter of the measurements about it were not found. Gat
   jump that the window does not average out (h = 0.01: 2.14 over 0.15-0.2 against 1.47 at h = 0.005).
 
 The tank, 6 D x 5 D, is large enough (the case file's header). The quick tier runs h = 0.01 m (D/20) alone
-(7 s), the full tier h = 0.02, 0.01, 0.005 m (D/10, D/20, D/40; the last about 80 s).
+(7-15 s), the full tier h = 0.02, 0.01, 0.005 m (D/10, D/20, D/40; the last 80-140 s on a loaded core).
 Not in the gated set (verify.EXPERIMENTAL): the lead decides; `cs_fit_err` fails (the note says why).
 """
 
