@@ -73,3 +73,10 @@ def test_a_window_past_the_end_of_the_run_is_refused():
     o, _ = synthetic_run(t_end=0.0150)
     with pytest.raises(ValueError, match="does not cover"):
         W.window(o, W.DEPTHS[-1])
+
+
+def test_the_root_is_where_the_profile_past_its_peak_falls_to_half():
+    zeta = np.linspace(0.0, 2.0, 201)
+    cp = np.interp(zeta, [0.0, 1.4, 1.5, 1.7, 2.0], [2.0, 7.0, 6.0, 0.0, 0.0])   # 3.5 at 1.5 + 2.5/30
+    assert abs(W.half_peak_root(zeta, cp) - (1.5 + 2.5 / 30.0)) < 1e-12
+    assert np.isnan(W.half_peak_root(zeta, np.linspace(1.0, 2.0, 201)))   # no fall past the peak
