@@ -24,7 +24,8 @@ CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking",
           "sinking_block"]
 # Runnable with --only but not yet part of the gated set (see the issue notes for why).
 # wedge_entry (issue 40 item 4): its self-similarity gate fails at every h tried, 0.02-0.0025 (the profiles
-# part at the spray root; docs/notes/wedge_entry.md), so it would fail the quick tier of make test.
+# part at the spray root, which sits about half a cell too high at every time; docs/notes/wedge_entry.md),
+# so it would fail the quick tier of make test.
 # accelerated_tank (issue 38 item 4): the tilted surface does not stay at rest (KE 1e-4 M g H and the water
 # spreading; docs/notes/accelerated_tank.md), so it would fail the quick tier of make test.
 # cylinder_entry (issue 40): its Cs lies 10-30 % above Campbell & Weynberg's fit (a secondary source's
