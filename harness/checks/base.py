@@ -124,3 +124,22 @@ class CheckContext:
         p = self.out_dir / "figures"
         p.mkdir(parents=True, exist_ok=True)
         return p
+
+
+def runs_by_h(fn, hs) -> list:
+    """[fn(h) for h in hs] side by side (harness.parallel.pmap); a failed run raises, named by its h."""
+    from harness import parallel
+
+    outs = parallel.pmap(fn, [(h,) for h in hs])
+    for h, o in zip(hs, outs, strict=True):
+        if isinstance(o, Exception):
+            raise RuntimeError(f"the h = {h:g} run failed: {o}")
+    return outs
+
+
+def put_level_metrics(res: CheckResult, h: float, metrics: dict, steps: int) -> None:
+    """A resolution level's metrics into res, each named h<h>_<key> (h0005_cp_max), and its steps."""
+    tag = f"h{h:g}".replace(".", "")
+    for k, v in metrics.items():
+        res.metrics[f"{tag}_{k}"] = v
+    res.metrics[f"{tag}_steps"] = float(steps)

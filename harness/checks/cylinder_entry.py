@@ -48,8 +48,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from harness import cases, parallel, paths, refdata, runner
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness import cases, paths, refdata, runner
+from harness.checks.base import CheckContext, CheckResult, Gate, put_level_metrics, runs_by_h
 
 NAME = "cylinder_entry"
 REQUIREMENT = ("A circular cylinder enters water at rest at constant speed V (incompressible water, no gravity): "
@@ -139,17 +139,11 @@ def run(ctx: CheckContext) -> CheckResult:
     fit = ref["fit"]
     lo, hi = ref["von_karman"]["cs0"], ref["wagner"]["cs0"]
     hs = H_QUICK if ctx.quick else H_FULL
-    outs = parallel.pmap(simulate, [(h,) for h in hs])
-    for h, o in zip(hs, outs, strict=True):
-        if isinstance(o, Exception):
-            raise RuntimeError(f"the h = {h:g} run failed: {o}")
+    outs = runs_by_h(simulate, hs)
     rows = []
     for o in outs:
         m = measures(o, fit)
-        tag = f"h{o['h']:g}".replace(".", "")
-        for k, v in m.items():
-            res.metrics[f"{tag}_{k}"] = v
-        res.metrics[f"{tag}_steps"] = float(o["steps"])
+        put_level_metrics(res, o["h"], m, o["steps"])
         rows.append(f"| {o['h']:g} | {D / o['h']:.0f} | {o['particles']} | {o['steps']} | "
                     + " | ".join(f"{c:.2f}" for c in o["cs"]) + f" | {m['cs_fit_err']:.3f} | {o['wall_s']:.0f} |")
     fin = outs[-1]

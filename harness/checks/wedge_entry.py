@@ -43,8 +43,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from harness import cases, parallel, paths, refdata, runner
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness import cases, paths, refdata, runner
+from harness.checks.base import CheckContext, CheckResult, Gate, put_level_metrics, runs_by_h
 from harness.probes import SurfacePressure
 
 NAME = "wedge_entry"
@@ -170,17 +170,11 @@ def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     ref = reference()
     hs = H_QUICK if ctx.quick else H_FULL
-    outs = parallel.pmap(simulate, [(h,) for h in hs])
-    for h, o in zip(hs, outs, strict=True):
-        if isinstance(o, Exception):
-            raise RuntimeError(f"the h = {h:g} run failed: {o}")
+    outs = runs_by_h(simulate, hs)
     rows = []
     for o in outs:
         m = measures(o, ref)
-        tag = f"h{o['h']:g}".replace(".", "")
-        for k, v in m.items():
-            res.metrics[f"{tag}_{k}"] = v
-        res.metrics[f"{tag}_steps"] = float(o["steps"])
+        put_level_metrics(res, o["h"], m, o["steps"])
         rows.append(f"| {o['h']:g} | {o['particles']} | {o['steps']} | {m['cp_max']:.3f} | {m['zeta_peak']:.3f} | "
                     f"{m['collapse_err']:.3f} | {m['collapse_err_wetted']:.3f} | {m['force_coef']:.2f} | "
                     f"{m['force_coef_spread']:.3f} | {o['wall_s']:.0f} |")
