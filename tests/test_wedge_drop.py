@@ -57,3 +57,16 @@ def test_the_case_is_the_experiment():
     water = next(b for b in case["bodies"] if b["name"] == "water")
     assert keel[1] == pytest.approx(water["geometry"]["max"][1])   # keel on the surface at t = 0
     assert case["materials"][1]["model"] == "rigid_body" and case["solver"]["t_end"] >= w.WINDOW
+
+
+def test_the_known_limitation_evidence_the_2d_bem_misses_the_record_by_9_percent():
+    """The evidence behind the record gate's known-limitation mark (LIMITATION): the 2-D potential-flow BEM,
+    the same model as ours, lies 9.1 % above the record at 19.8 ms, more than the 5 % gate; and it starts at
+    the impact speed and ends within 2 % of the record, so it is the same experiment's case."""
+    te, ve = w.record()
+    tb, vb = w.record(w.BEM)
+    tk, err = w.velocity_errors(tb, vb, te, ve)
+    assert len(tk) == len(te)                      # the BEM covers every record point in the window
+    assert err.max() == pytest.approx(0.0914, abs=5e-4) and tk[np.argmax(err)] == pytest.approx(19.80e-3, abs=1e-5)
+    assert err.max() > w.GATE and "9.1 %" in w.LIMITATION
+    assert vb[0] == pytest.approx(5.05, abs=0.01) and abs(vb[-1] / ve[-1] - 1.0) < 0.02

@@ -128,9 +128,9 @@ def run(ctx: CheckContext) -> CheckResult:
                       + "\n".join(rows) + f"\n\nRecord: v(40 ms) = {np.interp(WINDOW, te, ve):.3f} m/s. The BEM "
                       f"against the record: max {100 * bem_vs_exp.max():.1f} %, rms "
                       f"{100 * np.sqrt(np.mean(bem_vs_exp ** 2)):.1f} %.")
-    curves["BEM, Zhao & Faltinsen (1993), in Sun et al. (2015)"] = (tb * 1e3, vb)
     plots.time_series(ctx.fig_dir / "wedge_drop_velocity.png", None, curves,
                       points={"Yettou et al. (2006), digitised in Sun et al. (2015)": (te * 1e3, ve)},
+                      exact=(tb * 1e3, vb), exact_label="2-D BEM, Zhao & Faltinsen (1993), in Sun et al. (2015)",
                       xlabel="t from first contact [ms]", ylabel="downward velocity [m/s]", legend_loc="below",
                       title="Free-falling wedge, deadrise 25 deg, 94 kg/m, 5.05 m/s",
                       annotate=f"h = {finest:g} m: max error {100 * m['velocity_error_max']:.1f} % vs record, "
