@@ -28,17 +28,21 @@ contains
     type(blocks_t) :: blk
 
     call grid_clear_p2g(s%g, s%kw(1), s%kw(2))
+    ! The other sums P2G makes, on the same nodes (outside s%kw they are zero: cpdi_grid_update
+    ! node_range).
     !$omp single
-    if (s%any_rigid) then
-      s%g%mr = 0.0_wp
-      s%g%prx = 0.0_wp
-      s%g%pry = 0.0_wp
-    end if
-    if (s%g%nf > 1) then
-      s%g%gmx = 0.0_wp
-      s%g%gmy = 0.0_wp
-    end if
-    if (size(s%g%gv, 2) > 0) s%g%gv = 0.0_wp
+    associate (k0 => s%kw(1), k1 => s%kw(2))
+      if (s%any_rigid) then
+        s%g%mr(k0:k1, :) = 0.0_wp
+        s%g%prx(k0:k1, :) = 0.0_wp
+        s%g%pry(k0:k1, :) = 0.0_wp
+      end if
+      if (s%g%nf > 1) then
+        s%g%gmx(k0:k1, :) = 0.0_wp
+        s%g%gmy(k0:k1, :) = 0.0_wp
+      end if
+      if (size(s%g%gv, 2) > 0) s%g%gv(k0:k1, :) = 0.0_wp
+    end associate
     !$omp end single
     simple = s%g%nf == 1 .and. .not. s%any_rigid .and. size(s%g%gv, 2) == 0
     do colour = 1, 2
@@ -405,12 +409,14 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, f, b, colour, c, lo, hi
     type(blocks_t) :: blk
-    !$omp do schedule(static) private(k)
-    do k = s%kw(1), s%kw(2)
-      s%g%vx(k, :) = 0.0_wp
-      s%g%vy(k, :) = 0.0_wp
+    do f = 1, s%g%nf   ! field by field: a row of fields per node was a strided loop per node
+      !$omp do schedule(static) private(k)
+      do k = s%kw(1), s%kw(2)
+        s%g%vx(k, f) = 0.0_wp
+        s%g%vy(k, f) = 0.0_wp
+      end do
+      !$omp end do
     end do
-    !$omp end do
     do colour = 1, 2
       call strip_start(blk, s%sp, colour)
       do while (block_next(blk, b))
@@ -425,7 +431,7 @@ contains
     end do
     call momentum_to_velocity(s%g, s%mtol, s%kw, s%g%vx, s%g%vy)
     !$omp single
-    if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
+    if (s%any_rigid) call impose_rigid(s%g, s%kw, s%g%vx, s%g%vy)
     do f = 1, s%g%nf
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
     end do
