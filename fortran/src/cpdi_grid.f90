@@ -194,12 +194,16 @@ contains
     real(wp), intent(in), optional :: gv(:)
     real(wp), intent(in), optional :: vfull
     integer(ik) :: i, j, k
+    logical :: vol
 
+    vol = present(gv)   ! without volumes no node is released: released is not called
     if (g%walls(1) /= WALL_OPEN) then
       do j = 1, g%nn(2)
         do i = 1, g%wall_node(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k + 1)) cycle
+          if (vol) then
+            if (released(k, k + 1)) cycle
+          end if
           vx(k) = 0.0_wp
           if (g%walls(1) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -209,7 +213,9 @@ contains
       do j = 1, g%nn(2)
         do i = g%wall_node(2), g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k - 1)) cycle
+          if (vol) then
+            if (released(k, k - 1)) cycle
+          end if
           vx(k) = 0.0_wp
           if (g%walls(2) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -219,7 +225,9 @@ contains
       do j = 1, g%wall_node(3)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k + g%nn(1))) cycle
+          if (vol) then
+            if (released(k, k + g%nn(1))) cycle
+          end if
           vy(k) = 0.0_wp
           if (g%walls(3) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
@@ -229,7 +237,9 @@ contains
       do j = g%wall_node(4), g%nn(2)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k - g%nn(1))) cycle
+          if (vol) then
+            if (released(k, k - g%nn(1))) cycle
+          end if
           vy(k) = 0.0_wp
           if (g%walls(4) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
@@ -240,7 +250,7 @@ contains
       !! Field passes wall node k (kin: the next node inward).
       integer(ik), intent(in) :: k, kin
       released = .false.
-      if (.not. present(gv)) return
+      if (.not. vol) return
       if (kin < 1 .or. kin > g%nnodes) return
       released = gv(k)*inside_fraction(g, kin) < (vfull/g%h**2)*gv(kin)*inside_fraction(g, k)
     end function released

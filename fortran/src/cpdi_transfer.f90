@@ -6,7 +6,7 @@ module cpdi_transfer
   !! cpdi_incompressible.)
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
-  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, hold_on_walls, grid_box, WALL_OPEN
+  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, grid_box, WALL_OPEN
   use cpdi_shape, only: shape_t, shape_count, shape_slot
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
@@ -240,7 +240,7 @@ contains
           p%x(1, ip) = xo(1) + dt*vnx
           p%x(2, ip) = xo(2) + dt*vny
           if (.not. musl .or. g%nf > 1) p%L(:, ip) = velocity_gradient(sh, g%vx(:, f), g%vy(:, f), ip)
-          call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
+          call hold_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
         end if
         ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
         mom = mom + mp*p%v(:, ip)
@@ -283,7 +283,7 @@ contains
       pv(2, ip) = flip*(pv(2, ip) + dvy) + (1.0_wp - flip)*vny
       px(1, ip) = xo(1) + dt*vnx
       px(2, ip) = xo(2) + dt*vny
-      call hold_on_walls(px(:, ip), xmin, xmax, closed, nclamp)
+      call hold_walls(px(:, ip), xmin, xmax, closed, nclamp)
       ke = ke + 0.5_wp*mp*(pv(1, ip)**2 + pv(2, ip)**2)
       mom = mom + mp*pv(:, ip)
       wg = wg + mp*dot_product(grav, px(:, ip) - xo)
@@ -472,4 +472,25 @@ contains
       end do
     end associate
   end subroutine remap_strip
+
+  pure subroutine hold_walls(x, xmin, xmax, closed, nclamp)
+    !! cpdi_grid's hold_on_walls (particles held on closed walls; nclamp counts them), copied
+    !! here so that the G2P loops inline it instead of a call per particle into cpdi_grid
+    !! (no arithmetic: comparisons and copies only).
+    real(wp), intent(inout) :: x(2)
+    real(wp), intent(in) :: xmin(2), xmax(2)
+    logical, intent(in) :: closed(4)
+    integer(ik), intent(inout) :: nclamp
+    integer :: a
+    do a = 1, 2   ! closed = (left, right, bottom, top)
+      if (closed(2*a - 1) .and. x(a) < xmin(a)) then
+        x(a) = xmin(a)
+        nclamp = nclamp + 1
+      end if
+      if (closed(2*a) .and. x(a) > xmax(a)) then
+        x(a) = xmax(a)
+        nclamp = nclamp + 1
+      end if
+    end do
+  end subroutine hold_walls
 end module cpdi_transfer
