@@ -7,7 +7,7 @@ module cpdi_transfer
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
   use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, grid_box, WALL_OPEN
-  use cpdi_shape, only: shape_t, shape_count, shape_slot
+  use cpdi_shape, only: shape_t
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
   use cpdi_grid_update, only: momentum_to_velocity, impose_rigid
@@ -131,8 +131,8 @@ contains
         bx = mp*(s%opt%gravity(1) + p%bf(1, ip))
         by = mp*(s%opt%gravity(2) + p%bf(2, ip))
         rig = s%rigid(p%mat(ip))
-        do a = 1, shape_count(sh, ip)
-          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+        do a = 1, slot_count(sh, ip)
+          call slot(sh, ip, a, k, wk, gxk, gyk)
           wm = wk*mp
           g%m(k, f) = g%m(k, f) + wm
           g%px(k, f) = g%px(k, f) + wk*mvx
@@ -228,8 +228,8 @@ contains
           dvy = 0.0_wp
           vnx = 0.0_wp
           vny = 0.0_wp
-          do a = 1, shape_count(sh, ip)
-            call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+          do a = 1, slot_count(sh, ip)
+            call slot(sh, ip, a, k, wk, gxk, gyk)
             vnx = vnx + wk*g%vx(k, f)
             vny = vny + wk*g%vy(k, f)
             dvx = dvx + wk*(g%vx(k, f) - g%px(k, f))
@@ -393,8 +393,8 @@ contains
     integer(ik) :: a, k
     real(wp) :: wk, gxk, gyk
     l = 0.0_wp
-    do a = 1, shape_count(sh, ip)
-      call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+    do a = 1, slot_count(sh, ip)
+      call slot(sh, ip, a, k, wk, gxk, gyk)
       l(1) = l(1) + vx(k)*gxk
       l(2) = l(2) + vy(k)*gxk
       l(3) = l(3) + vx(k)*gyk
@@ -464,8 +464,8 @@ contains
         f = s%field(ip)
         mvx = p%m(ip)*p%v(1, ip)
         mvy = p%m(ip)*p%v(2, ip)
-        do a = 1, shape_count(sh, ip)
-          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+        do a = 1, slot_count(sh, ip)
+          call slot(sh, ip, a, k, wk, gxk, gyk)
           g%vx(k, f) = g%vx(k, f) + wk*mvx
           g%vy(k, f) = g%vy(k, f) + wk*mvy
         end do
@@ -493,4 +493,34 @@ contains
       end if
     end do
   end subroutine hold_walls
+
+  pure integer(ik) function slot_count(sh, ip)
+    !! Slots in use by particle ip (cpdi_shape's shape_count). A copy in this module so that the
+    !! general transfers' slot loops inline it: shape_slot, in cpdi_shape, was a call per slot
+    !! (about a tenth of a contact run's step).
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip
+    slot_count = sh%nm
+    if (sh%ovf(ip) /= 0) slot_count = sh%ns
+  end function slot_count
+
+  pure subroutine slot(sh, ip, a, k, w, gx, gy)
+    !! Slot a (1..slot_count) of particle ip: main slot a, or pool slot a - nm (cpdi_shape's
+    !! shape_slot, copied here for inlining; see slot_count).
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip, a
+    integer(ik), intent(out) :: k
+    real(wp), intent(out) :: w, gx, gy
+    if (a <= sh%nm) then
+      k = sh%idx(a, ip)
+      w = sh%w(a, ip)
+      gx = sh%gx(a, ip)
+      gy = sh%gy(a, ip)
+    else
+      k = sh%pidx(a - sh%nm, sh%ovf(ip))
+      w = sh%pw(a - sh%nm, sh%ovf(ip))
+      gx = sh%pgx(a - sh%nm, sh%ovf(ip))
+      gy = sh%pgy(a - sh%nm, sh%ovf(ip))
+    end if
+  end subroutine slot
 end module cpdi_transfer
