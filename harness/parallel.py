@@ -121,12 +121,16 @@ class Cluster:
         except BaseException:
             self.client.cancel(futures)
             raise
+        self._count_reruns(topic, [(f"{name}[{i}]", k, i) for i, k in enumerate(keys)])
+        return out
+
+    def _count_reruns(self, topic: str, tasks: list[tuple[str, str, int]]) -> None:
+        """Record the tasks (label, key, index) of one topic that started more than once."""
         starts = self._starts(topic)
         if starts is None:
-            self.uncounted += len(items)
-            return out
-        self.reruns += [Rerun(f"{name}[{i}]", starts[k], i, self.context) for i, k in enumerate(keys) if starts[k] > 1]
-        return out
+            self.uncounted += len(tasks)
+            return
+        self.reruns += [Rerun(label, starts[k], i, self.context) for label, k, i in tasks if starts[k] > 1]
 
     def submit(self, fn: Callable[..., Any], item: Any, priority: float = 1.0) -> Pending:
         """fn(*item) started now, ahead of the maps that follow (a long run that would otherwise be
@@ -170,11 +174,7 @@ class Pending:
             return _safe(self.fn, self.item)
         out = _outcome(self.future)
         self.future.release()
-        starts = c._starts(self.topic)
-        if starts is None:
-            c.uncounted += 1
-        elif starts[self.key] > 1:
-            c.reruns.append(Rerun(f"{self.name}[early]", starts[self.key], 0, c.context))
+        c._count_reruns(self.topic, [(f"{self.name}[early]", self.key, 0)])
         return out
 
 
