@@ -143,3 +143,15 @@ def put_level_metrics(res: CheckResult, h: float, metrics: dict, steps: int) -> 
     for k, v in metrics.items():
         res.metrics[f"{tag}_{k}"] = v
     res.metrics[f"{tag}_steps"] = float(steps)
+
+
+def run_completed(res: CheckResult, suffix: str, label: str, out: Any) -> bool:
+    """Gate `completed<suffix>` that the run `label` reached t_end (out is its result, or the
+    exception it raised, which the gate's text and a note then name); True if it did."""
+    completed = not isinstance(out, Exception)
+    res.metrics[f"completed{suffix}"] = float(completed)
+    res.gates.append(Gate.at_least(f"completed{suffix}", float(completed), 1.0,
+                                   f"{label} reached t_end" + ("" if completed else f": {out}")))
+    if not completed:
+        res.notes.append(f"{label}: did not complete: {out}")
+    return completed

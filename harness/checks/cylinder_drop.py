@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, refdata, runner, seeding
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
 
 NAME = "cylinder_drop"
 REQUIREMENT = ("A free-falling cylinder (D = 0.11 m, 2.955 m/s at impact, rho_s = 500) penetrates as Greenhow & Lin "
@@ -78,11 +78,7 @@ def run(ctx: CheckContext) -> CheckResult:
     curves, rows = {}, []
     for (h, rho), out in zip(jobs, outs, strict=True):
         tag = f"_rho{rho}_h{h:g}"
-        completed = not isinstance(out, Exception)
-        res.metrics[f"completed{tag}"] = float(completed)
-        res.gates.append(Gate.at_least(f"completed{tag}", float(completed), 1.0,
-                                       f"rho_s = {rho}, h = {h:g} reached t_end" + ("" if completed else f": {out}")))
-        if not completed:
+        if not run_completed(res, tag, f"rho_s = {rho}, h = {h:g}", out):
             continue
         m = out["metrics"]
         res.metrics.update({k + tag: v for k, v in m.items()})

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, refdata, runner, seeding
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
 
 NAME = "wedge_drop"
 REQUIREMENT = ("A free-falling wedge (deadrise 25 deg, 94 kg per metre, 5.05 m/s at impact) decelerates as Yettou et "
@@ -96,12 +96,7 @@ def run(ctx: CheckContext) -> CheckResult:
     curves, rows = {}, []
     for h, out in zip(levels, outs, strict=True):
         tag = f"_h{h:g}"
-        completed = not isinstance(out, Exception)
-        res.metrics[f"completed{tag}"] = float(completed)
-        res.gates.append(Gate.at_least(f"completed{tag}", float(completed), 1.0,
-                                       f"the h = {h:g} run reached t_end" + ("" if completed else f": {out}")))
-        if not completed:
-            res.notes.append(f"h = {h:g}: did not complete: {out}")
+        if not run_completed(res, tag, f"the h = {h:g} run", out):
             continue
         m = out["metrics"]
         res.metrics.update({k + tag: v for k, v in m.items()})
