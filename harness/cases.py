@@ -91,7 +91,8 @@ PROBE = {
 SCHEMA: dict[str, Key] = {
     "case": Key("table", "identity of the case", required=True, sub={
         "name": Key("str", "short name, used for the run directory", required=True),
-        "requirement": Key("str", "one-line requirement the case verifies", required=True),
+        "requirement": Key("str", "one-line requirement the case verifies (a check that runs the case shows this text)",
+                           required=True),
         "description": Key("str", "free text", default=""),
     }),
     "grid": Key("table", "background grid", required=True, sub={

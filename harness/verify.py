@@ -17,23 +17,37 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from harness import gate, parallel, paths, provenance, report
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult
 
-CHECKS = ["convergence", "vibrating_bar", "water_column", "hydrostatic_locking", "dam_break_front",
-          "elastic_obstacle", "rigid_obstacle", "resting_tank", "dam_break_pressure", "floating_block",
-          "sinking_block"]
-# Runnable with --only but not yet part of the gated set (see the issue notes for why).
-# wedge_entry (issue 40 item 4): its self-similarity gate fails at every h tried, 0.02-0.0025 (the profiles
-# part at the spray root, which sits about half a cell too high at every time; docs/notes/wedge_entry.md),
-# so it would fail the quick tier of make test.
-# accelerated_tank (issue 38 item 4): the tilted surface does not stay at rest (KE 1e-4 M g H and the water
-# spreading; docs/notes/accelerated_tank.md), so it would fail the quick tier of make test.
-# cylinder_entry (issue 40): its Cs lies 10-30 % above Campbell & Weynberg's fit (a secondary source's
-# reading of DNV's), converged in h (docs/notes/cylinder_entry.md).
-# wedge_drop (issue 40): within 5 % of the 2D BEM only at h = 0.01 (the quick tier's h = 0.02: 7.4 %);
-# cylinder_drop (issue 40): 0.33 D deeper than Greenhow & Lin's record, 0.2 D beyond the 2D SPH once
-# submerged, cause not found (docs/notes/wedge_drop.md, cylinder_drop.md).
-EXPERIMENTAL: list[str] = ["wedge_entry", "accelerated_tank", "cylinder_entry", "wedge_drop", "cylinder_drop"]
+
+def __getattr__(name: str) -> list[str]:
+    """CHECKS (the gated set, in order) and EXPERIMENTAL (runnable with --only): what the check
+    modules register (harness.checks.registry), read when first asked for."""
+    if name == "CHECKS":
+        return registry.gated()
+    if name == "EXPERIMENTAL":
+        return registry.experimental()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def list_text() -> str:
+    """The registered checks, a line each: what ``verify --only`` with no name prints."""
+    import shutil
+    import textwrap
+
+    rows = registry.all_checks()
+    width = max(len(r.name) for r in rows) + 2
+    text = max(40, shutil.get_terminal_size((100, 24)).columns - width - 1)
+    lines = []
+    for r in rows:
+        req = importlib.import_module(r.module).REQUIREMENT
+        head = r.name + ("" if r.gated else " (experimental)")
+        body = textwrap.wrap(req, text) + ([] if r.gated else textwrap.wrap(
+            f"not gated: {r.experimental} ({r.notes})", text))
+        lines.append(head)
+        lines += [" " * width + b for b in body]
+    return "\n".join(lines)
 
 
 def _check_bar(total: int, progress: bool, file=None):
@@ -143,11 +157,15 @@ def _stamp(quick: bool) -> str:
 
 def main(quick: bool = False, only: list[str] | None = None, out: Path | None = None, progress: bool = True,
          regen_gold: bool = False, jobs: int | None = None, scheduler: str | None = None) -> int:
-    names = CHECKS if not only else only
-    unknown = [n for n in names if n not in CHECKS + EXPERIMENTAL]
+    if only is not None and not only:   # --only with no name: what exists
+        print(list_text())
+        return 0
+    checks, experimental = registry.gated(), registry.experimental()
+    names = checks if not only else only
+    unknown = [n for n in names if n not in checks + experimental]
     if unknown:
-        extra = f" (experimental: {', '.join(EXPERIMENTAL)})" if EXPERIMENTAL else ""
-        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(CHECKS)}{extra}",
+        extra = f" (experimental: {', '.join(experimental)})" if experimental else ""
+        print(f"error: unknown check(s) {', '.join(unknown)}; available: {', '.join(checks)}{extra}",
               file=sys.stderr)
         return 2
     if regen_gold:
@@ -158,7 +176,7 @@ def main(quick: bool = False, only: list[str] | None = None, out: Path | None = 
         with parallel.cluster(jobs, scheduler):  # one cluster for both tiers
             for tier_quick in (False, True):
                 out_dir = paths.work_root() / "reports" / _stamp(tier_quick)
-                metrics, _ = verify(tier_quick, CHECKS, out_dir, progress)
+                metrics, _ = verify(tier_quick, checks, out_dir, progress)
                 failed = [n for n, c in metrics["checks"].items() if not c["passed"]]
                 if failed:
                     print(f"error: gold not written: checks failed in the {'quick' if tier_quick else 'full'} "

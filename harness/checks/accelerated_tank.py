@@ -13,15 +13,20 @@ reported, not gated.
 
 from __future__ import annotations
 
-from harness import cases, paths
+from harness import paths
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult
 from harness.checks.resting_tank import run_tank
 
 NAME = "accelerated_tank"
 CASE = paths.CASES / "accelerated_tank.toml"
-REQUIREMENT = cases.load(CASE)["case"]["requirement"]   # one source: the case file
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 
 
+@registry.check(order=2,
+                experimental=("the tilted surface does not stay at rest: the KE, surface drift and displacement gates "
+                              "fail"),
+                notes="docs/notes/accelerated_tank.md")
 def run(ctx: CheckContext) -> CheckResult:
     return run_tank(ctx, NAME, REQUIREMENT, CASE,
                     gates=(("slope_rel_error", 0.01, "fitted free-surface slope vs b/g"),))

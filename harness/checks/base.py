@@ -1,7 +1,8 @@
 """Shared result types for verification checks.
 
-Every check module in ``harness.checks`` exposes ``NAME``, ``REQUIREMENT`` and
-``run(ctx) -> CheckResult``. The report writer and the gate only ever see these types.
+Every check module in ``harness.checks`` exposes ``NAME``, ``REQUIREMENT`` (its case file's) and
+``run(ctx) -> CheckResult``, registered with ``@registry.check``. The report writer and the
+gate only ever see these types.
 """
 
 from __future__ import annotations

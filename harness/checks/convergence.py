@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness import metrics, parallel, plots
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import mms
 from harness.problems import vibrating_bar as bar
@@ -52,6 +53,7 @@ def _levels(case: str, quick: bool) -> list[int]:
     return LEVELS[case][:3] if quick else LEVELS[case]
 
 
+@registry.check(order=1)
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     jobs = [(case, shape, n) for case in LEVELS for shape in SHAPES for n in _levels(case, ctx.quick)]

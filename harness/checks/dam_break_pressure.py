@@ -44,16 +44,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from harness import cases, parallel, paths, refdata, water
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.runner import build
 
 NAME = "dam_break_pressure"
-REQUIREMENT = ("A 0.6 m x 0.3 m water column collapses in a 1.61 m tank; the downstream-wall pressure at 30 and "
-               "80 mm follows the converged 2D single-phase reference (TrixiParticles EDAC H/400): mean over "
-               "3 <= t* <= 5.5 within 10 % at the two finest h, sustained impact within 0.1 t* at the finest, the "
-               "mean's error falling with h; against Lobovsky et al. (2014): first rise within 0.1 t*; water volume "
-               "change <= 1 %.")
 CASE = paths.CASES / "dam_break_pressure.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 REF = "lobovsky_2014_pressure_H300_sensors34_event5.csv"
 REF_2D = "lobovsky_2d_numerical/trixiparticles_edac_400.csv"   # the gated code-to-code reference
 REF_2D_SHOWN = {"TrixiParticles WCSPH H/400": "lobovsky_2d_numerical/trixiparticles_wcsph_400.csv"}
@@ -224,6 +221,7 @@ def start_early(ctx: CheckContext) -> None:
         ctx.early[f"H/{n}"] = parallel.submit(_run, (level_case(n), True), priority=EARLY_SECONDS)
 
 
+@registry.check(order=9)
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     ref = refdata.read(REF)

@@ -26,15 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from harness import cases, parallel, paths, runner
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import fsi
 
 NAME = "elastic_obstacle"
-REQUIREMENT = ("Water from a collapsing column bends the elastic obstacle like the published solutions: peak "
-               "tip displacement in [0.035, 0.055] m at t in [0.20, 0.28] s and RMS distance outside the "
-               "published band <= 0.005 m, as one continuum and with contact (weakly compressible water) and "
-               "with the incompressible water.")
 CASE = paths.CASES / "elastic_obstacle.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 
 
 INCOMPRESSIBLE = ("solver.fluid=incompressible", "solver.projection=none")
@@ -48,6 +46,7 @@ def _run(cell: float, contact: bool, out: Path, extra: tuple[str, ...] = ()):
     return {"t": r.series["t"], "tip": r.series["tip_dx"], "summary": r.summary}
 
 
+@registry.check(order=6)
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     cell = 0.008 if ctx.quick else 0.004

@@ -29,14 +29,12 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, runner, water
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "floating_block"
-REQUIREMENT = ("A 0.6 m x 0.2 m block (rho_s = 500 and 800) floats upright in the resting tank at Archimedes' "
-               "draft s 0.2 m below the far-field surface (incompressible water, no damping): draft error <= 5 % "
-               "of the block height (h = 0.05; 2.5 % at h = 0.025, full tier), tilt < 1 degree, the oscillation "
-               "decays, final KE <= 1e-5 M g H.")
 CASE = paths.CASES / "floating_block.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 RHO_W, G = 1000.0, 9.81
 HB, WB, XB, DEPTH = 0.2, 0.6, 0.95, 1.2   # block height, width, left edge; water depth
 FAR = 0.5                                  # far-field strips next to each wall [m]
@@ -115,6 +113,7 @@ def measures(o: dict) -> dict:
     }
 
 
+@registry.check(order=10)
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     t_end = 3.0 if ctx.quick else 4.0

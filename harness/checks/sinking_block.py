@@ -36,14 +36,13 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, runner
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
 from harness.problems import fsi
 
 NAME = "sinking_block"
-REQUIREMENT = ("A 0.3 m block (rho = 1100) dropped from 0.1 m enters the water at sqrt(2 g 0.1) (1 %), the water "
-               "closes over it, it sinks to the floor (half a cell) and stays there, with mass conserved and no "
-               "energy created (1 %).")
 CASE = paths.CASES / "sinking_block.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 G, DROP, SURFACE = 9.81, 0.1, 1.2
 
 
@@ -119,6 +118,7 @@ def gates(m: dict, h: float, suffix: str) -> list[Gate]:
             Gate.at_most(f"water_volume_loss{suffix}", m["water_volume_loss"], 0.02)]
 
 
+@registry.check(order=11)
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     chosen = {k: v for k, v in RUNS.items() if k in QUICK or not ctx.quick}

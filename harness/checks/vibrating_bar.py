@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness import metrics, plots
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 from harness.problems import vibrating_bar as bar
 
@@ -21,6 +22,7 @@ REQUIREMENT = ("The 1D vibrating bar (L = 25, E = 100, rho = 1) reproduces the a
                "and its error falls at least at first order under refinement for CPDI.")
 
 
+@registry.check(order=2)
 def run(ctx: CheckContext) -> CheckResult:
     levels = [13, 26, 52] if ctx.quick else [13, 26, 52, 104]
     res = CheckResult(NAME, REQUIREMENT)

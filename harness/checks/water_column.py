@@ -18,11 +18,11 @@ import h5py
 import numpy as np
 
 from harness import cases, paths, plots, refdata, runner
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate
 
 NAME = "water_column"
-REQUIREMENT = ("A water column (L = 0.146 m, 2L high) collapses in a slip-walled tank 4L wide and runs to "
-               "completion with no energy created and its front behind Ritter's bound.")
+REQUIREMENT = registry.requirement("water_column.toml")   # one source: the case file
 CASE = paths.CASES / "water_column.toml"
 MM_FRONT = paths.REFERENCE / "data" / "martin_moyce_1952_front_n2eq2_a2.25in_table2.csv"
 L = 0.146
@@ -55,6 +55,7 @@ def _measure(res: CheckResult, out, prefix: str = "") -> tuple:
     return T, Z, e_total
 
 
+@registry.check(order=3)
 def run(ctx: CheckContext) -> CheckResult:
     cell = 0.0146 if ctx.quick else 0.0073
     case = cases.load(CASE, [f"grid.cell={cell}"])

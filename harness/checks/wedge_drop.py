@@ -28,13 +28,12 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, refdata, runner, seeding
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
 
 NAME = "wedge_drop"
-REQUIREMENT = ("A free-falling wedge (deadrise 25 deg, 94 kg per metre, 5.05 m/s at impact) decelerates as Yettou et "
-               "al. (2006) measured: vertical velocity within 5 % of the record at every recorded point over the "
-               "first 40 ms (finest h; a known limitation of the 2-D model), and within 5 % of the 2-D BEM solution.")
 CASE = paths.CASES / "wedge_drop.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 DATA = "yettou_2006_wedge_drop_velocity_sun2015_digitized.csv"
 BEM = "zhao_faltinsen_1993_bem_wedge_drop_velocity_sun2015_digitized.csv"
 LIMITATION = ("the 2-D incompressible inviscid model's own solution (BEM, Zhao & Faltinsen 1993, digitised in Sun et "
@@ -88,6 +87,9 @@ def simulate(h: float, out) -> dict:
     return {"metrics": m, "t": t, "v": v, "err": (tk, err), "summary": r.summary}
 
 
+@registry.check(order=4,
+                experimental=("within 5 % of the 2D BEM only at h = 0.01, not at the quick tier's h = 0.02 (7.4 %)"),
+                notes="docs/notes/wedge_drop.md")
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     levels = QUICK if ctx.quick else LEVELS

@@ -44,15 +44,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from harness import cases, paths, refdata, runner
+from harness.checks import registry
 from harness.checks.base import CheckContext, CheckResult, Gate, put_level_metrics, runs_by_h
 from harness.probes import SurfacePressure
 
 NAME = "wedge_entry"
-REQUIREMENT = ("A wedge of deadrise 30 degrees enters water at rest at constant speed V (incompressible water, no "
-               "gravity): the pressure profiles p/(0.5 rho V^2) against z/(Vt) at three times collapse within 10 % "
-               "of their peak; the peak lies within 10 % of the similarity solution's and below Wagner's "
-               "(pi/(2 tan beta))^2; F/(rho V^3 t) is constant in time within 10 % and below Wagner's.")
 CASE = paths.CASES / "wedge_entry.toml"
+REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 REF = "wedge_entry_wagner_similarity.csv"
 RHO, V, BETA = 1000.0, 5.0, 30.0
 DEPTHS = (0.03, 0.05, 0.07)      # V t of the three profiles [m]
@@ -166,6 +164,10 @@ def measures(o: dict, ref: dict) -> dict:
             **{f"zeta_half_t{k}": half_peak_root(p["zeta"], p["cp"]) for k, p in enumerate(prof)}}
 
 
+@registry.check(order=1,
+                experimental=("its self-similarity gate fails at every h tried, 0.02-0.0025: the profiles part at the "
+                              "spray root, which sits about half a cell too high"),
+                notes="docs/notes/wedge_entry.md")
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     ref = reference()
