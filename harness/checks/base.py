@@ -7,6 +7,7 @@ gate only ever see these types.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -156,3 +157,37 @@ def run_completed(res: CheckResult, suffix: str, label: str, out: Any) -> bool:
     if not completed:
         res.notes.append(f"{label}: did not complete: {out}")
     return completed
+
+
+def gravity(case) -> float:
+    """The magnitude of a case's gravity (its ``[solver] gravity``, pointing down)."""
+    gx, gy = case["solver"]["gravity"]
+    return math.hypot(gx, gy)
+
+
+def body(case, name: str) -> dict:
+    """A case's body by name (a check reads its geometry from the case, not a copy)."""
+    for b in case["bodies"]:
+        if b["name"] == name:
+            return b
+    raise KeyError(f"the case has no body {name!r}")
+
+
+def body_bounds(case, name: str) -> tuple[list[float], list[float]]:
+    """Lower-left and upper-right corners of a body's geometry."""
+    from harness import cases
+
+    return cases.geometry_bounds(body(case, name)["geometry"])
+
+
+def material(case, name: str) -> dict:
+    """A case's material by name."""
+    for m in case["materials"]:
+        if m["name"] == name:
+            return m
+    raise KeyError(f"the case has no material {name!r}")
+
+
+def grid_size(case) -> tuple[float, float]:
+    """The grid's extent (x, y) of a case."""
+    return tuple(case["grid"]["size"])

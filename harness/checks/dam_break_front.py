@@ -61,7 +61,7 @@ GATED = ("front_rms_dz_shifted", "front_time_shift", "height_rms_dh")
 
 
 def _table_run(n, shape, projection, K):
-    r = db.run(L / n, fluid="weakly_compressible", shape=shape, projection=projection, K=K, t_end=0.45)
+    r = db.run(L / n, fluid="weakly_compressible", shape=shape, projection=projection, K=K)
     return {**db.front_metrics(r.series), "series": r.series, "pups": r.summary["particle_updates_per_s"]}
 
 
@@ -97,7 +97,7 @@ def cost(n, t_end, K=None):
     depends on it): 8 n^2 particles; weakly compressible (bulk modulus K) t_end c / (cfl h) acoustic
     steps, c = sqrt(K / rho), cfl 0.4; incompressible (K None) about 40 n steps (1609 at L/40, 652 at
     L/20), each about ten weakly compressible particle-updates (the pressure solve, measured at L/40)."""
-    steps = 400 * n if K is None else t_end * math.sqrt(K / 1000.0) * n / (0.4 * L)
+    steps = 400 * n if K is None else t_end * math.sqrt(K / db.RHO) * n / (db.CFL * L)
     return 8 * n * n * steps
 
 
@@ -131,7 +131,7 @@ def start_early(ctx: CheckContext) -> None:
         jobs = snap_jobs(ctx)
         for label in REAL_K:
             ctx.early[label] = parallel.submit(_snap_run, jobs[label],
-                                               priority=cost(jobs[label][0], T_END, 2.13e9) / UPDATES_PER_S)
+                                               priority=cost(jobs[label][0], T_END, db.K_REAL) / UPDATES_PER_S)
 
 
 @registry.check(order=5)
@@ -148,8 +148,8 @@ def run(ctx: CheckContext) -> CheckResult:
     # the bulk-modulus table's K = 2e6 row is the resolution table's CPDI, cell row at L/n_fine: run once
     reduced = list(dict.fromkeys(table_jobs + k_jobs))
     early = [label for label in jobs if label in ctx.early]
-    tasks = ([(_snap_run, a, cost(a[0], t_end, None if a[5] == ic else 2.13e9)) for label, a in jobs.items()
-              if label not in early] + [(_table_run, j, cost(j[0], 0.45, j[3])) for j in reduced])
+    tasks = ([(_snap_run, a, cost(a[0], t_end, None if a[5] == ic else db.K_REAL)) for label, a in jobs.items()
+              if label not in early] + [(_table_run, j, cost(j[0], db.T_END, j[3])) for j in reduced])
     print(f"[{NAME}] 2 real-K runs, {len(jobs) - 2} incompressible and {len(reduced)} reduced-K runs, side by side, "
           "the longest first", flush=True)
     # one map, the longest runs first (by the estimated cost): the short ones fill the workers the

@@ -45,7 +45,7 @@ import numpy as np
 
 from harness import cases, parallel, paths, refdata, water
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, gravity, material
 from harness.runner import build
 
 NAME = "dam_break_pressure"
@@ -55,7 +55,9 @@ REF = "lobovsky_2014_pressure_H300_sensors34_event5.csv"
 REF_2D = "lobovsky_2d_numerical/trixiparticles_edac_400.csv"   # the gated code-to-code reference
 REF_2D_SHOWN = {"TrixiParticles WCSPH H/400": "lobovsky_2d_numerical/trixiparticles_wcsph_400.csv"}
 REF_DECOURCY = "lobovsky_2d_numerical/decourcy2024_sensors.csv"
-H, RHO, G = 0.3, 1000.0, 9.81
+_CASE = cases.load(CASE)
+H = body_bounds(_CASE, "column")[1][1]   # the column's height
+RHO, G = material(_CASE, "water")["density"], gravity(_CASE)
 TSTAR = math.sqrt(G / H)
 SENSORS = {"3": 0.03, "4": 0.08}
 DIAMETER = 0.0042
@@ -94,7 +96,7 @@ def _run(case, incompressible: bool) -> dict:
     ncell = (round(g["size"][0] / h), round(g["size"][1] / h))
     xw = g["origin"][0] + g["size"][0]
     support = KERNEL_SPACINGS * h / case["bodies"][0]["ppc"]
-    dt_s = 0.01 / TSTAR
+    dt_s = 0.01 / TSTAR   # not the case's: a sample every 0.01 t*
     t, rows, snaps = 0.0, [], {}
     t0 = time.perf_counter()
     try:

@@ -30,16 +30,20 @@ import numpy as np
 
 from harness import cases, parallel, paths, plots, runner, water
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, gravity, material
 
 NAME = "floating_block"
 CASE = paths.CASES / "floating_block.toml"
 REQUIREMENT = registry.requirement(CASE)   # one source: the case file
-RHO_W, G = 1000.0, 9.81
-HB, WB, XB, DEPTH = 0.2, 0.6, 0.95, 1.2   # block height, width, left edge; water depth
+_CASE = cases.load(CASE)
+RHO_W, G = material(_CASE, "water")["density"], gravity(_CASE)
+_BLOCK = body_bounds(_CASE, "block")
+HB, WB = (round(_BLOCK[1][k] - _BLOCK[0][k], 12) for k in (1, 0))   # block height, width
+XB = _BLOCK[0][0]                                # the block's left edge
+DEPTH = body_bounds(_CASE, "water_left")[1][1]   # water depth
 FAR = 0.5                                  # far-field strips next to each wall [m]
-# (rho_s, bottom of the block at release): 500 at its draft, 800 0.01 m above its draft
-RUNS = ((500.0, 1.10), (800.0, 1.05))
+# (rho_s, bottom of the block at release): the case's block (500, at its draft), and 800 0.01 m above its draft
+RUNS = ((material(_CASE, "block")["density"], _BLOCK[0][1]), (800.0, 1.05))
 # (tag suffix, overrides): the case's Hencky block, and the block as a free rigid body
 MODELS = (("", ()), ("_rigid", ("materials.1.model=rigid_body",)))
 
@@ -117,8 +121,10 @@ def measures(o: dict) -> dict:
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     t_end = 3.0 if ctx.quick else 4.0
-    # (h, tag suffix, draft error bound / H): the h = 0.025 runs in the full tier only
-    grids = ((0.05, "", 0.05),) if ctx.quick else ((0.05, "", 0.05), (0.025, "_h0025", 0.025))
+    h0 = _CASE["grid"]["cell"]
+    # (h, tag suffix, draft error bound / H): the case's h, and the h0 / 2 in the full tier only
+    # not the case's: 0.05 and 0.025 are the draft error bounds (5 % and 2.5 % of H)
+    grids = ((h0, "", 0.05),) if ctx.quick else ((h0, "", 0.05), (h0 / 2, "_h0025", 0.025))
     items = [(h, sfx + msfx, bound, rho, bottom, model) for msfx, model in MODELS for h, sfx, bound in grids
              for rho, bottom in RUNS]
     outs = parallel.pmap(simulate, [(rho, bottom, t_end, [f"grid.cell={h}", *model])
@@ -126,7 +132,7 @@ def run(ctx: CheckContext) -> CheckResult:
     for (h, sfx, _, rho, _, _), o in zip(items, outs, strict=True):
         if isinstance(o, Exception):
             raise RuntimeError(f"the rho_s = {rho:g}, h = {h:g} run ({sfx or 'hencky'}) failed: {o}")
-    runs = [o for (h, sfx, *_), o in zip(items, outs, strict=True) if h == 0.05 and not sfx]
+    runs = [o for (h, sfx, *_), o in zip(items, outs, strict=True) if h == h0 and not sfx]
     rows = []
     for (h, sfx, bound, *_), o in zip(items, outs, strict=True):
         m = measures(o)

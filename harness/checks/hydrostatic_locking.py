@@ -21,7 +21,7 @@ import numpy as np
 
 from harness import cases, metrics, parallel, paths, plots, runner
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, grid_size
 from harness.problems import hydrostatic as hs
 from harness.solver import pressure
 
@@ -29,7 +29,9 @@ NAME = "hydrostatic_locking"
 REQUIREMENT = registry.requirement("hydrostatic_column.toml")   # one source: the case file
 COLUMN = paths.CASES / "hydrostatic_column.toml"
 DAM = paths.CASES / "water_column.toml"
-H = 1.0
+_COLUMN, _DAM = cases.load(COLUMN), cases.load(DAM)
+H = body_bounds(_COLUMN, "column")[1][1]   # the settled column's height
+DAM_HEIGHT = body_bounds(_DAM, "column")[1][1]
 SHAPES = ("mpm", "gimp", "cpdi")
 PROJS = ("none", "cell", "nodal")
 
@@ -53,7 +55,7 @@ def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     table = {}
     finest = {}
-    cell_dam = 0.0146 if ctx.quick else 0.0073
+    cell_dam = _DAM["grid"]["cell"] * (2 if ctx.quick else 1)
     # every run at once on the verify's workers, the finest grids and the collapsing columns first
     cols = [(shape, proj, n) for n in levels[::-1] for shape in SHAPES for proj in PROJS]
     outs = parallel.pmap(parallel.call, [(run_dam, (proj, cell_dam)) for proj in PROJS]
@@ -88,7 +90,7 @@ def run(ctx: CheckContext) -> CheckResult:
     noise, frames = {}, []
     for proj in PROJS:
         r = dams[proj]
-        noise[proj] = hs.pressure_noise(r.final["x"], r.final["sigma"], cell_dam, cell_dam / 2, 0.292)
+        noise[proj] = hs.pressure_noise(r.final["x"], r.final["sigma"], cell_dam, cell_dam / 2, DAM_HEIGHT)
         frames.append((f"{proj}: noise {noise[proj]:.3f}", r.final["x"], pressure(r.final["sigma"]) / 1e3))
     res.metrics.update({f"dambreak_pressure_noise_{k}": v for k, v in noise.items()})
     for proj in ("cell", "nodal"):
@@ -143,9 +145,10 @@ def _figures(ctx, res, table, levels, finest, frames):
     col = [(f"{proj}", finest[proj].final["x"],
             (pressure(finest[proj].final["sigma"]) - hs.RHO * hs.G * (H - finest[proj].final["x"][:, 1]))
             / (hs.RHO * hs.G * H)) for proj in PROJS]
-    plots.particle_panels(ctx.fig_dir / "hydrostatic_error_field.png", col, (0, 0.2), (0, 1.0),
+    plots.particle_panels(ctx.fig_dir / "hydrostatic_error_field.png", col, (0, grid_size(_COLUMN)[0]), (0, H),
                           "(p - rho0 g (H - y)) / (rho0 g H)", f"Settled column, CPDI, h = H/{n}")
-    plots.particle_panels(ctx.fig_dir / "dambreak_pressure_field.png", frames, (0, 0.584), (0, 0.2),
+    # not the case's: 0.2 m is the plot's height (the water below it at t = 0.2 s)
+    plots.particle_panels(ctx.fig_dir / "dambreak_pressure_field.png", frames, (0, grid_size(_DAM)[0]), (0, 0.2),
                           "pressure [kPa]", "Collapsing column at t = 0.2 s (CPDI): projection none / cell / nodal")
     curves = {}
     for shape in SHAPES:

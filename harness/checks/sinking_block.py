@@ -37,13 +37,16 @@ import numpy as np
 
 from harness import cases, parallel, paths, plots, runner
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, gravity, run_completed
 from harness.problems import fsi
 
 NAME = "sinking_block"
 CASE = paths.CASES / "sinking_block.toml"
 REQUIREMENT = registry.requirement(CASE)   # one source: the case file
-G, DROP, SURFACE = 9.81, 0.1, 1.2
+_CASE = cases.load(CASE)
+G = gravity(_CASE)
+SURFACE = body_bounds(_CASE, "water")[1][1]                       # the water's surface
+DROP = round(body_bounds(_CASE, "block")[0][1] - SURFACE, 12)      # the block's bottom above it
 
 
 def impact_velocity(t, bottom, vy) -> float:
@@ -148,8 +151,8 @@ def run(ctx: CheckContext) -> CheckResult:
                       title=f"Sinking block: {len(chosen)} run(s), one verdict",
                       annotate=f"impact {base['metrics']['impact_velocity']:.4f} m/s vs {exact:.4f}; "
                                f"final bottom {b[-1]:.3f} m (base)")
-    frames = fsi.frames(ctx.runs_dir / "base", (0.25, 0.75, 2.0, t[-1]))
-    fsi.fsi_panels(ctx.fig_dir / "sinking_block_snapshots.png", frames, 0, (0, 2.5), (0, 1.7),
+    frames = fsi.frames(ctx.runs_dir / "base", (0.25, 0.75, 2.0, t[-1]))   # not the case's: snapshot times [s]
+    fsi.fsi_panels(ctx.fig_dir / "sinking_block_snapshots.png", frames, 0, (0, _CASE["grid"]["size"][0]), (0, 1.7),
                    "Sinking block (water by pressure, block in red)")
     res.figures += ["sinking_block_trajectory.png", "sinking_block_snapshots.png"]
     res.notes.insert(0, __doc__.split("\n\n", 1)[1].strip())

@@ -19,14 +19,15 @@ import numpy as np
 
 from harness import cases, paths, plots, refdata, runner
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, gravity, grid_size
 
 NAME = "water_column"
 REQUIREMENT = registry.requirement("water_column.toml")   # one source: the case file
 CASE = paths.CASES / "water_column.toml"
 MM_FRONT = paths.REFERENCE / "data" / "martin_moyce_1952_front_n2eq2_a2.25in_table2.csv"
-L = 0.146
-G = 9.81
+_CASE = cases.load(CASE)
+L = body_bounds(_CASE, "column")[1][0]   # the column's width
+G = gravity(_CASE)
 
 
 def _measure(res: CheckResult, out, prefix: str = "") -> tuple:
@@ -57,7 +58,7 @@ def _measure(res: CheckResult, out, prefix: str = "") -> tuple:
 
 @registry.check(order=3)
 def run(ctx: CheckContext) -> CheckResult:
-    cell = 0.0146 if ctx.quick else 0.0073
+    cell = _CASE["grid"]["cell"] * (2 if ctx.quick else 1)
     case = cases.load(CASE, [f"grid.cell={cell}"])
     res = CheckResult(NAME, REQUIREMENT)
     out = runner.run(case, ctx.runs_dir, progress=ctx.progress)
@@ -84,7 +85,7 @@ def run(ctx: CheckContext) -> CheckResult:
         for name in (groups[0], groups[len(groups) // 2], groups[-1]):
             g = f["snapshots"][name]
             frames.append((f"t = {g.attrs['time']:.2f} s", g["position"][:], g["pressure"][:] / 1e3))
-    plots.particle_panels(ctx.fig_dir / "water_column_snapshots.png", frames, (0, 0.584), (0, 0.32),
+    plots.particle_panels(ctx.fig_dir / "water_column_snapshots.png", frames, (0, grid_size(case)[0]), (0, 0.32),
                           "pressure [kPa]", "Water column collapse (incompressible water, CPDI weights, APIC)")
     res.figures += ["water_column_snapshots.png", "water_column_front.png", "water_column_energy.png"]
     res.notes.append(f"{s['particles']} particles, {s['steps']} steps, {s['wall_s']:.1f} s wall, "

@@ -41,8 +41,8 @@ LIMITATION = ("the 2-D incompressible inviscid model's own solution (BEM, Zhao &
 MASS = 94.0        # kg per metre of wedge length
 WINDOW = 0.040     # s, the issue's window
 GATE = 0.05
-LEVELS = (0.02, 0.0125, 0.01)  # h [m]; the full tier runs all three, the gates read the finest
-QUICK = (0.02,)
+QUICK = (cases.load(CASE)["grid"]["cell"],)   # the case's h
+LEVELS = (QUICK[0], 0.0125, 0.01)   # h [m]; the full tier runs all three, the gates read the finest
 
 
 def record(name: str = DATA) -> tuple[np.ndarray, np.ndarray]:

@@ -45,20 +45,24 @@ import numpy as np
 
 from harness import cases, paths, refdata, runner
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate, put_level_metrics, runs_by_h
+from harness.checks.base import CheckContext, CheckResult, Gate, body, material, put_level_metrics, runs_by_h
 from harness.probes import SurfacePressure
 
 NAME = "wedge_entry"
 CASE = paths.CASES / "wedge_entry.toml"
 REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 REF = "wedge_entry_wagner_similarity.csv"
-RHO, V, BETA = 1000.0, 5.0, 30.0
+_CASE = cases.load(CASE)
+RHO = material(_CASE, "water")["density"]
+V = -material(_CASE, "wedge")["velocity"][1]   # the entry speed
+_KEEL, _CHINE = body(_CASE, "wedge")["geometry"]["vertices"][:2]
+BETA = round(math.degrees(math.atan2(_CHINE[1] - _KEEL[1], _CHINE[0] - _KEEL[0])), 3)   # the deadrise [deg]
 DEPTHS = (0.03, 0.05, 0.07)      # V t of the three profiles [m]
 WINDOW = 0.2                     # each profile and force: a time mean over whole cycles h/V, ~ +/- 20 % of its time
 T_END = 0.0171                   # past the last window's end (V t = 0.085 m at h = 0.01 and 0.005), V t = 0.0855 m
 PROBE = "face"
-H_QUICK = (0.01,)
-H_FULL = (0.02, 0.01, 0.005)
+H_QUICK = (_CASE["grid"]["cell"],)
+H_FULL = (2 * H_QUICK[0], H_QUICK[0], H_QUICK[0] / 2)
 TOL = 0.10
 
 

@@ -12,7 +12,13 @@ import numpy as np
 from harness import cases, paths, refdata, runner
 
 CASE = paths.CASES / "dam_break.toml"
-L, G = 0.146, 9.81
+_CASE = cases.load(CASE)
+L = cases.geometry_bounds(_CASE["bodies"][0]["geometry"])[1][0]   # the column's width
+G = -_CASE["solver"]["gravity"][1]
+K_REAL = _CASE["materials"][0]["bulk_modulus"]   # real water: the weakly compressible runs'
+RHO = _CASE["materials"][0]["density"]
+T_END = _CASE["solver"]["t_end"]
+CFL = _CASE["solver"]["cfl"]
 FRONT = refdata.read("martin_moyce_1952_front_n2eq2_a2.25in_table2.csv")
 HEIGHT = refdata.read("martin_moyce_1952_height_n2eq2_a2.25in_table6.csv")
 
@@ -22,11 +28,13 @@ HEIGHT = refdata.read("martin_moyce_1952_height_n2eq2_a2.25in_table6.csv")
 WEAKLY_COMPRESSIBLE = ['solver.fluid="weakly_compressible"', 'solver.transfer="flip"']
 
 
-def load(cell: float, *, fluid: str, shape: str = "cpdi", projection: str = "cell", K: float = 2.13e9,
-         kinematics: str = "log", t_end: float = 0.45):
+def load(cell: float, *, fluid: str, shape: str = "cpdi", projection: str = "cell", K: float | None = None,
+         kinematics: str = "log", t_end: float | None = None):
     """cases/dam_break.toml at cell size ``cell``; ``fluid``: "incompressible" (the case file's water)
-    or "weakly_compressible" (WEAKLY_COMPRESSIBLE; K is its bulk modulus). The incompressible water
-    refuses a volumetric projection: give it projection="none"."""
+    or "weakly_compressible" (WEAKLY_COMPRESSIBLE; K is its bulk modulus, the case's by default). The
+    incompressible water refuses a volumetric projection: give it projection="none"."""
+    K = K_REAL if K is None else K
+    t_end = T_END if t_end is None else t_end
     if fluid not in ("incompressible", "weakly_compressible"):
         raise ValueError(f"fluid must be incompressible or weakly_compressible, got {fluid!r}")
     water = WEAKLY_COMPRESSIBLE if fluid == "weakly_compressible" else []
