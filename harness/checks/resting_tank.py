@@ -18,12 +18,14 @@ import numpy as np
 
 from harness import cases, parallel, paths, plots, runner, water
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, gravity, material
 
 NAME = "resting_tank"
 CASE = paths.CASES / "resting_tank.toml"
 REQUIREMENT = registry.requirement(CASE)   # one source: the case file
-H, RHO, G = 1.2, 1000.0, 9.81
+_CASE = cases.load(CASE)
+H = body_bounds(_CASE, "water")[1][1]   # the depth at rest (accelerated_tank's mean depth too)
+RHO, G = material(_CASE, "water")["density"], gravity(_CASE)
 WC_SETTINGS = ['solver.fluid="weakly_compressible"', 'solver.projection="cell"', "solver.projection_stabilization=0.1",
                "solver.flip=0.999", "solver.cfl=0.4"]
 
@@ -84,7 +86,7 @@ def run_tank(ctx: CheckContext, name: str, requirement: str, case_path,
     res = CheckResult(name, requirement)
     case = cases.load(case_path)
     slope = surface_slope(case)
-    t_wc = 3.0 if ctx.quick else 10.0
+    t_wc = 3.0 if ctx.quick else case["solver"]["t_end"]   # the weakly compressible run (quick: 3 s)
     wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
     # the two water models side by side on the verify's workers
     inc, wc = parallel.pmap(run_measured, [(case, ctx.runs_dir / "incompressible"),
