@@ -119,10 +119,10 @@ def resolve(repo: Path, m: Mark, generated: set[str] | None = None) -> tuple[int
     if not (repo / m.file).is_file():
         return None, f"{head}: {m.file} does not exist any more. {_fix(m)}"
     body = statements(repo, m.file)
-    if m.routine not in body:
+    if m.routine.lower() not in body:
         return None, f"{head}: there is no routine {m.routine} in {m.file} (renamed or moved?). {_fix(m)}"
     want = compact(m.statement)
-    found = [n for n, text in body[m.routine] if compact(text) == want]
+    found = [n for n, text in body[m.routine.lower()] if compact(text) == want]
     if not found:
         return None, (f"{head}: its statement `{m.statement}` is not in {m.routine} any more (edited, or moved to "
                       f"another routine). {_fix(m)}")
