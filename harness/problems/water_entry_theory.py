@@ -28,7 +28,8 @@ Models (the force is vertical, F = integral of p dx over the wetted projection, 
   constant V this gives (derivation below)
       p / (rho V^2) = c c_h / sqrt(c^2 - x^2) - (1/2) [1 + x^2 / ((c^2 - x^2) (1 + f'(x)^2))],    (P)
   c_h = dc/dh. The pressure is integrated where it is positive (it falls to -infinity at x -> c): the
-  force is 2 integral_0^{x*} p dx, p(x*) = 0.
+  force is 2 integral_0^{x*} p dx, p(x*) = 0 (the implementation named below clips the same pressure at
+  zero, which is the same integral).
   Derivation of (P): with n the body's normal, |grad phi|^2 = (phi_x^2 + V^2) / (1 + f'^2) (phi_x the
   x-derivative of (L) along the body); the time derivative at a fixed point is the derivative following
   the body point (x fixed, y moving at -V) plus V phi_y, phi_y = (phi_x f' - V) / (1 + f'^2); Bernoulli,
