@@ -15,5 +15,6 @@
   verdict, the test that killed it, seconds), the kill rate per file and overall, the
   survivors, as Markdown, JSON and HTML.
 
-Mutants marked equivalent by hand (``equivalent.toml``, each with its reason) do not count.
+Mutants marked equivalent by hand (``equivalent.toml``, each with its reason) do not count; a mark
+names its mutant by file, routine, statement and mutation, not by line (``marks``).
 """

@@ -163,7 +163,9 @@ def journal_rows(journal: Path, mutants: list[Mutant]) -> list[dict]:
             if line.strip():
                 row = json.loads(line)
                 done[row["id"]] = row
-    return [done[m.id] for m in mutants if m.id in done]
+    # a row's key is the mutant's content key as this tree computes it (rows journalled before the
+    # keys existed, or under another normalisation, then still meet their marks)
+    return [{**done[m.id], "key": m.key} for m in mutants if m.id in done]
 
 
 def pending(mutants: list[Mutant], done: dict[str, dict], marked: set[str], verify: bool,

@@ -11,6 +11,8 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from tools.mutation import marks
+
 RULES = [str(Path(__file__).with_name("fortran.rules")), "fortran.rules"]  # ours, universalmutator's builtin
 # Lines never mutated: comments, blank, directives, declarations and module structure, and the
 # error messages (their text is not physics; a changed message is caught by no physics test).
@@ -37,6 +39,9 @@ class Mutant:
     after: str
     key: str = ""  # by content, what equivalence marks name: file, routine, statement and mutation
 
+    def to_dict(self) -> dict:
+        return asdict(self)
+
 
 ROUTINE = re.compile(r"^\s*(?:(?:pure|elemental|recursive|impure|module|integer|real|logical|complex|"
                      r"type\s*\([^)]*\)|(?:integer|real|logical)\s*\([^)]*\))\s+)*"
@@ -59,18 +64,6 @@ def routines(lines: list[str]) -> list[str]:
             stack.append(m.group(1).lower())
         out.append(stack[-1] if stack else "module")
     return out
-
-
-def content_key(stem: str, routine: str, before: str, after: str, occurrence: int) -> str:
-    """stem:routine:hash of the statement and its mutation (blanks normalised), ":n" for the n-th
-    same mutation of the same statement in one routine (n >= 2). Moving code leaves it unchanged;
-    editing the statement, or moving it to another routine, changes it."""
-    norm = " ".join(before.split()) + "\n" + " ".join(after.split())
-    key = f"{stem}:{routine}:{hashlib.sha1(norm.encode()).hexdigest()[:8]}"
-    return key if occurrence == 1 else f"{key}:{occurrence}"
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def _engine():
@@ -97,11 +90,14 @@ def file_mutants(repo: Path, rel: str) -> list[Mutant]:
         if _unbalanced(text):
             continue
         seen.add((lineno, text))
+        same = (where[lineno - 1], marks.compact(before), marks.compact(text))
+        if same[1] == same[2]:   # only a comment (or blanks, or case) changed: no mutant
+            continue
         digest = hashlib.sha1(text.encode()).hexdigest()[:8]
         stem, routine = Path(rel).stem, where[lineno - 1]
-        nth = count[(routine, before.strip(), text.strip())] = count.get((routine, before.strip(), text.strip()), 0) + 1
+        count[same] = count.get(same, 0) + 1   # the n-th copy of this statement in its routine
         out.append(Mutant(f"{stem}:{lineno}:{digest}", rel, lineno, rule[0], before.rstrip("\n"),
-                          text.rstrip("\n"), content_key(stem, routine, before, text, nth)))
+                          text.rstrip("\n"), marks.content_key(stem, routine, before, text, count[same])))
     return out
 
 

@@ -48,12 +48,11 @@ def main(sample: int = 220, jobs: int | None = None, seed: int = 20, full: bool 
             "tiers": "fast (Fortran unit tests + " + str(len(execute.FAST_TESTS)) + " unit-level pytest files, -x) "
                      + ("then the rest of make test for survivors" if full else "only")
                      + ("; make verify for make test's survivors" if verify_timeout else "")}
-    stale = summary.stale_marks({m.key for ms in every.values() for m in ms}, files)
+    stale = summary.stale_marks(_committed(rev), files, {m.key for ms in every.values() for m in ms})
     if stale:
-        meta["stale_marks"] = stale
-        print(f"warning: {len(stale)} mark(s) in tools/mutation/equivalent.toml name no mutant at {rev[:12]} "
-              f"(an edited statement changes its key): {', '.join(stale)}; re-check and update them",
-              file=sys.stderr)
+        meta["stale_marks"] = sorted(stale)
+        print(f"warning: {len(stale)} mark(s) in tools/mutation/equivalent.toml name no mutant at {rev[:12]}:\n  "
+              + "\n  ".join(stale.values()), file=sys.stderr)
     name = f"{meta['date']}-{rev[:12]}" + ("-ids" if ids else "")   # an id run never mixes into a sample's report
     out = Path(resume) if resume else REPO / "reports" / "mutation" / name
     out.mkdir(parents=True, exist_ok=True)

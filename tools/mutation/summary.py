@@ -4,29 +4,26 @@ from __future__ import annotations
 
 import html
 import json
-import tomllib
 from collections import defaultdict
 from pathlib import Path
 
-EQUIVALENT = Path(__file__).with_name("equivalent.toml")
+from tools.mutation import marks
+
 KILLED = ("killed", "killed (time limit)")
 
 
-def stale_marks(generated: set[str], files: list[str], marks: dict[str, str] | None = None) -> list[str]:
-    """Marks (keys of equivalent.toml) of the given source files that name no mutant the sources
-    give now. A key holds the file, the routine, the statement and its mutation (not the line), so
-    moving code keeps its mark; editing the marked statement orphans it, and the mutant would
-    then count as a survivor unnoticed: the mark must be reviewed again."""
-    stems = {Path(f).stem for f in files}
-    marks = equivalent_keys() if marks is None else marks
-    return sorted(i for i in marks if i.split(":", 1)[0] in stems and i not in generated)
+def stale_marks(repo: Path, files: list[str], generated: set[str] | None = None) -> dict[str, str]:
+    """Marks of equivalent.toml for the given source files that name no mutant of the sources now:
+    key -> what is wrong and how to fix it (tools.mutation.marks.orphans). A mark names its mutant
+    by file, routine, statement and mutation (not the line), so moving code keeps it; editing the
+    marked statement orphans it, and the mutant would then count as a survivor unnoticed: the mark
+    must be reviewed again."""
+    return marks.orphans(repo, files, generated)
 
 
 def equivalent_keys() -> dict[str, str]:
     """Mutants marked equivalent by hand (reviewed), content key -> reason."""
-    if not EQUIVALENT.is_file():
-        return {}
-    return {e["key"]: e["reason"] for e in tomllib.loads(EQUIVALENT.read_text()).get("mutant", [])}
+    return {m.key: m.reason for m in marks.load()}
 
 
 def mark(row: dict) -> str:
@@ -91,7 +88,7 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
                "tools/mutation/equivalent.toml): " + ", ".join(f"`{r['id']}` by {r['killed_by']}" for r in wrong)]
     if meta.get("stale_marks"):
         md += ["", f"**{len(meta['stale_marks'])} marks in tools/mutation/equivalent.toml name no mutant of "
-               "this revision** (their line moved or changed; re-check and update them): "
+               "this revision** (their statement changed or left its routine; re-check and update them): "
                + ", ".join(f"`{i}`" for i in meta["stale_marks"])]
     md += ["", f"## Survivors of make test ({len(surv)})", ""]
     md += [f"- `{r['file']}:{r['line']}` `{r['before'].strip()}` -> `{r['after'].strip()}`"
@@ -99,7 +96,7 @@ def write(out: Path, rows: list[dict], meta: dict) -> dict:
               " (survived make verify too)" if r.get("tier") == "verify" else "") for r in surv]
     md += ["", "## Every mutant", "", "| mutant | rule | verdict | killed by | s |", "|---|---|---|---|---|"]
     md += [f"| `{r['file']}:{r['line']}` | `{r['rule'].replace('|', '/')}` | "
-           f"{'equivalent' if r['id'] in eq else r['verdict']} | {r['killed_by']} | {r['seconds']:.0f} |"
+           f"{'equivalent' if mark(r) in eq else r['verdict']} | {r['killed_by']} | {r['seconds']:.0f} |"
            for r in rows]
     (out / "summary.md").write_text("\n".join(md) + "\n")
     _html(out, sc, rows, eq, meta)
