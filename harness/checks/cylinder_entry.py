@@ -50,20 +50,24 @@ import numpy as np
 
 from harness import cases, paths, refdata, runner
 from harness.checks import registry
-from harness.checks.base import CheckContext, CheckResult, Gate, put_level_metrics, runs_by_h
+from harness.checks.base import CheckContext, CheckResult, Gate, body_bounds, material, put_level_metrics, runs_by_h
 
 NAME = "cylinder_entry"
 CASE = paths.CASES / "cylinder_entry.toml"
 REQUIREMENT = registry.requirement(CASE)   # one source: the case file
 REF = "cylinder_entry_campbell_weynberg.csv"
-RHO, V, D = 1000.0, 5.0, 0.2
+_CASE = cases.load(CASE)
+RHO = material(_CASE, "water")["density"]
+V = -material(_CASE, "cylinder")["velocity"][1]   # the entry speed
+D = round(2 * body_bounds(_CASE, "cylinder")[1][0], 12)   # the half cylinder's radius is its width
 S_END = 0.5                       # the window's end, s/D (the cylinder half under)
 T_END = S_END * D / V
-EDGES = np.array([0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5])   # windows of s/D, wider where Cs varies slowly
+# not the case's: windows of s/D, wider where Cs varies slowly
+EDGES = np.array([0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5])
 GATED = (0.05, 0.5)               # windows inside this range are gated against the fit
-H_QUICK = (0.01,)
-H_FULL = (0.02, 0.01, 0.005)
-TOL = 0.10
+H_FULL = (4 * _CASE["grid"]["cell"], 2 * _CASE["grid"]["cell"], _CASE["grid"]["cell"])   # the case's h is the finest
+H_QUICK = (H_FULL[1],)
+TOL = 0.10   # not the case's: the gate's tolerance
 
 
 def reference() -> dict[str, dict[str, float]]:
