@@ -10,21 +10,19 @@ module cpdi_api
                          CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
-  use cpdi_shape, only: shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
-  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
+  use cpdi_shape, only: shape_count, shape_slot
+  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
-  use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_sim, only: sim_t, NDIAG, NTIMER, sim_apply_options
+  use cpdi_options, only: OPTIONS, NOPT, OPT_NAME_LEN, OPT_CHOICE_LEN, OPT_UNIT_LEN, OPT_HELP_LEN, opt_set, opt_check
   use cpdi_motion, only: vtable_set
   use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside, sim_release
-  use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
+  use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
   implicit none
   private
-
-  integer, parameter :: NIOPT = 6   !! shape, update, projection, kinematics, domain_scaling, fixed_dt
-  integer, parameter :: NROPT = 8   !! cfl, gx, gy, damping, dt, flip, lcrit, projection stabilisation
 
   type :: slot_t
     logical :: used = .false.
@@ -34,7 +32,7 @@ module cpdi_api
   type(slot_t), allocatable, target, save :: reg(:)
 
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
-            cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
+            cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
@@ -43,6 +41,8 @@ module cpdi_api
   public :: cpdi_set_velocity_table, cpdi_water_loads
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
   public :: cpdi_poisson_precond, cpdi_pressure_stats
+  ! Every option by name through one table (issue 39 item 1).
+  public :: cpdi_check_options, cpdi_option_count, cpdi_option_info
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
   integer, parameter :: NPSTATE = 27                !! rows per particle of the full state
@@ -116,6 +116,7 @@ contains
       call move_alloc(tmp, reg)
     end if
     allocate (reg(handle)%s)
+    call sim_apply_options(reg(handle)%s)   ! the option table's defaults (cpdi_options)
     reg(handle)%used = .true.
     call finish(st, ierr, msg)
   end subroutine cpdi_new
@@ -327,64 +328,6 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_set_state
 
-  subroutine cpdi_set_options(handle, iopt, ropt, ierr, msg)
-    !! iopt = [shape (0 mpm, 1 gimp, 2 cpdi), update (0 usl, 1 musl), projection,
-    !!         kinematics (0 log, 1 small), domain_scaling (0/1), fixed_dt (0/1)]
-    !! ropt = [cfl, gravity_x, gravity_y, damping, dt, flip, lcrit, projection stabilisation beta]
-    integer(c_int), intent(in) :: handle
-    integer(c_int), intent(in) :: iopt(NIOPT)
-    real(c_double), intent(in) :: ropt(NROPT)
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    type(sim_t), pointer :: s
-    call lookup(handle, s, st)
-    if (st%ok()) then
-      if (.not. finite_all(ropt)) then
-        call st%set(CPDI_ERR_INPUT, 'solver options contain NaN or Inf; give finite values')
-      else if (iopt(1) < SHAPE_MPM .or. iopt(1) > SHAPE_CPDI) then
-        call st%set(CPDI_ERR_INPUT, 'shape must be 0 (mpm), 1 (gimp) or 2 (cpdi)')
-      else if (iopt(2) /= UPDATE_USL .and. iopt(2) /= UPDATE_MUSL) then
-        call st%set(CPDI_ERR_INPUT, 'update must be 0 (usl) or 1 (musl)')
-      else if (iopt(3) < 0 .or. iopt(3) > 2) then
-        call st%set(CPDI_ERR_INPUT, 'projection must be 0 (none), 1 (cell) or 2 (nodal)')
-      else if (iopt(4) /= KIN_LOG .and. iopt(4) /= KIN_SMALL) then
-        call st%set(CPDI_ERR_INPUT, 'kinematics must be 0 (log) or 1 (small)')
-      else if (any(iopt(5:6) < 0) .or. any(iopt(5:6) > 1)) then
-        call st%set(CPDI_ERR_INPUT, 'domain_scaling and fixed_dt are flags: 0 or 1')
-      else if (.not. (ropt(1) > 0.0_wp .and. ropt(1) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'cfl must lie in (0, 1]; 0.1-0.5 is typical')
-      else if (.not. (ropt(4) >= 0.0_wp .and. ropt(4) < 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'damping must lie in [0, 1)')
-      else if (iopt(6) == 1 .and. .not. (ropt(5) > 0.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'a fixed time step dt must be positive (s)')
-      else if (.not. (ropt(6) >= 0.0_wp .and. ropt(6) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'flip must lie in [0, 1]')
-      else if (.not. (ropt(7) > 0.0_wp .and. ropt(7) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'lcrit must lie in (0, 1] (fraction of the cell size)')
-      else if (.not. (ropt(8) >= 0.0_wp .and. ropt(8) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'projection stabilisation beta must lie in [0, 1]')
-      end if
-    end if
-    if (st%ok()) then
-      s%opt%shape = iopt(1)
-      s%opt%update = iopt(2)
-      s%opt%projection = iopt(3)
-      s%opt%kinematics = iopt(4)
-      s%opt%domain_scaling = iopt(5)
-      s%opt%fixed_dt = iopt(6)
-      s%opt%cfl = ropt(1)
-      s%opt%gravity = ropt(2:3)
-      s%opt%damping = ropt(4)
-      s%opt%dt = ropt(5)
-      s%opt%flip = ropt(6)
-      s%opt%lcrit = ropt(7)
-      s%opt%pstab = ropt(8)
-      s%smax = -1.0_wp
-    end if
-    call finish(st, ierr, msg)
-  end subroutine cpdi_set_options
-
   subroutine cpdi_set_body_force(handle, n, b, ierr, msg)
     !! External body force per unit mass b(2,n) [m/s^2], added to gravity, kept until reset.
     integer(c_int), intent(in) :: handle
@@ -426,6 +369,7 @@ contains
     nsteps = 0
     t = 0.0_wp
     call lookup(handle, s, st)
+    if (st%ok()) call opt_check(s%ov, st)
     if (st%ok()) call sim_prepare(s, st)
     if (st%ok() .and. .not. (abs(t_end) <= huge(t_end))) call st%set(CPDI_ERR_INPUT, 't_end must be finite')
     if (st%ok()) then
@@ -653,83 +597,95 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_get_timers
 
-  subroutine cpdi_set_option(handle, name, value, ierr, msg)
-    !! A solver option by name (options added after the positional iopt/ropt of
-    !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
-    !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
-    !! volume_correction (beta of the divergence target beta (fill - 1) / dt), pressure_precond
-    !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
-    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 explicit, their explicit
-    !! steps subcycled inside the water's; 2 implicit, explicit with the solids' volumetric stress
-    !! implicit in the projection; 3 auto, the coupling chooses by what the solids are, cpdi_step
-    !! prepare_solids; docs/fsi_incompressible.md, docs/notes/fsi_subcycling.md).
+  subroutine cpdi_set_option(handle, name, n, values, ierr, msg)
+    !! Solver option name = values(1:n), by name: every option is a row of the table in
+    !! cpdi_options (cpdi_option_info lists them), which checks the value in one place (kind,
+    !! components, range). An enum takes its value's 0-based index, a flag 0 or 1. The rules
+    !! between options are checked by cpdi_check_options (and before every advance).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
-    real(c_double), intent(in) :: value
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: values(n)
     integer(c_int), intent(out) :: ierr
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. (abs(value) <= huge(value))) call st%set(CPDI_ERR_INPUT, trim(name)//' must be finite')
-    if (.not. st%ok()) then
-      call finish(st, ierr, msg)
-      return
+    if (st%ok()) then
+      call opt_set(s%ov, name, values, st)
+      if (st%ok()) then
+        call sim_apply_options(s)
+        s%smax = -1.0_wp
+      end if
     end if
-    select case (trim(name))
-    case ('fluid')
-      call set_flag(s%opt%fluid, 'fluid must be 0 (weakly_compressible) or 1 (incompressible)')
-    case ('transfer')
-      call set_flag(s%inc%transfer, 'transfer must be 0 (flip) or 1 (apic)')
-    case ('cg_tolerance')
-      call set_real(s%inc%tol, value > 0.0_wp .and. value < 1.0_wp, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
-    case ('cg_max_iterations')
-      if (.not. (value >= 0.0_wp .and. value < 1.0e9_wp) .or. value /= aint(value)) then
-        call st%set(CPDI_ERR_INPUT, 'cg_max_iterations must be a whole number >= 0 (0: automatic)')
-      else
-        s%inc%maxit = nint(value, ik)
-      end if
-    case ('volume_correction')
-      call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
-                    'volume_correction must lie in [0, 2]; 0.1-1 is typical')
-    case ('pressure_precond')
-      call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
-    case ('solid_substeps')
-      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp .and. value /= 3.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off), 1 (explicit), 2 (implicit) or 3 (auto)')
-      else
-        s%inc%substeps = nint(value, ik)
-      end if
-    case default
-      call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, pressure_precond or solid_substeps')
-    end select
-    if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)
-  contains
-    subroutine set_flag(target, text)
-      !! target = value if it is 0 or 1, else the error text.
-      integer(ik), intent(inout) :: target
-      character(len=*), intent(in) :: text
-      if (value /= 0.0_wp .and. value /= 1.0_wp) then
-        call st%set(CPDI_ERR_INPUT, text)
-      else
-        target = nint(value, ik)
-      end if
-    end subroutine set_flag
-
-    subroutine set_real(target, ok, text)
-      !! target = value if ok, else the error text.
-      real(wp), intent(inout) :: target
-      logical, intent(in) :: ok
-      character(len=*), intent(in) :: text
-      if (ok) then
-        target = value
-      else
-        call st%set(CPDI_ERR_INPUT, text)
-      end if
-    end subroutine set_real
   end subroutine cpdi_set_option
+
+  subroutine cpdi_check_options(handle, ierr, msg)
+    !! The rules between a simulation's options (a fixed dt is positive; apic needs the
+    !! incompressible water): the case loader runs it on a scratch simulation.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) call opt_check(s%ov, st)
+    call finish(st, ierr, msg)
+  end subroutine cpdi_check_options
+
+  subroutine cpdi_option_count(n)
+    !! Rows of the option table.
+    integer(c_int), intent(out) :: n
+    n = int(NOPT, c_int)
+  end subroutine cpdi_option_count
+
+  subroutine cpdi_option_info(i, name, kind, ncomp, default, lo, hi, lo_open, hi_open, in_case, choices, unit, &
+                              help, ierr, msg)
+    !! Row i (1-based) of the option table (cpdi_options): name; kind 1 real, 2 whole number,
+    !! 3 flag, 4 enum; components; default (an enum: its index); range lo..hi (+-huge:
+    !! unbounded) with open ends flagged 1; in_case 0 not a case key, 1 a [solver] key with the
+    !! default, 2 a [solver] key without one; an enum's '|'-separated value names; unit; help.
+    integer(c_int), intent(in) :: i
+    character(len=OPT_NAME_LEN), intent(out) :: name
+    integer(c_int), intent(out) :: kind, ncomp, lo_open, hi_open, in_case
+    real(c_double), intent(out) :: default, lo, hi
+    character(len=OPT_CHOICE_LEN), intent(out) :: choices
+    character(len=OPT_UNIT_LEN), intent(out) :: unit
+    character(len=OPT_HELP_LEN), intent(out) :: help
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    name = ''
+    kind = 0
+    ncomp = 0
+    lo_open = 0
+    hi_open = 0
+    in_case = 0
+    default = 0.0_wp
+    lo = 0.0_wp
+    hi = 0.0_wp
+    choices = ''
+    unit = ''
+    help = ''
+    if (i < 1 .or. i > NOPT) then
+      call st%set(CPDI_ERR_INPUT, 'option row out of range; use 1 .. cpdi_option_count')
+    else
+      name = OPTIONS(i)%name
+      kind = int(OPTIONS(i)%kind, c_int)
+      ncomp = int(OPTIONS(i)%ncomp, c_int)
+      default = OPTIONS(i)%default
+      lo = OPTIONS(i)%lo
+      hi = OPTIONS(i)%hi
+      lo_open = merge(1_c_int, 0_c_int, OPTIONS(i)%lo_open)
+      hi_open = merge(1_c_int, 0_c_int, OPTIONS(i)%hi_open)
+      in_case = int(OPTIONS(i)%in_case, c_int)
+      choices = OPTIONS(i)%choices
+      unit = OPTIONS(i)%unit
+      help = OPTIONS(i)%help
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_option_info
 
   subroutine cpdi_face_velocity(handle, nx, ny, u, v, ierr, msg)
     !! Face velocities after the last step of an incompressible run, (nx, ny) = cells:
