@@ -157,7 +157,7 @@ contains
     end do
   end function opt_choice
 
-  function opt_value(os, name) result(x)
+  pure function opt_value(os, name) result(x)
     !! First component of the option called name (NaN-free: a name not in the table is a
     !! programming error and gives huge, which the first use exposes).
     type(optset_t), intent(in) :: os
@@ -169,14 +169,14 @@ contains
     if (i > 0) x = os%v(1, i)
   end function opt_value
 
-  integer(ik) function opt_code(os, name)
+  pure integer(ik) function opt_code(os, name)
     !! A whole-number, flag or enum option's value (an enum: its 0-based index).
     type(optset_t), intent(in) :: os
     character(len=*), intent(in) :: name
     opt_code = nint(opt_value(os, name), ik)
   end function opt_code
 
-  logical function opt_is(os, name, word)
+  pure logical function opt_is(os, name, word)
     !! Whether enum option name has the value called word.
     type(optset_t), intent(in) :: os
     character(len=*), intent(in) :: name, word

@@ -150,6 +150,7 @@ contains
     s%inc%beta = opt_value(s%ov, 'volume_correction')
     s%inc%mc%precond = opt_code(s%ov, 'pressure_precond')
     s%inc%substeps = opt_code(s%ov, 'solid_substeps')
+    s%inc%mc%ov = s%ov   ! the pressure stages (cpdi_pressure, cpdi_coupling, cpdi_loads) read options by name
   end subroutine sim_apply_options
 
   subroutine tic(t0)
