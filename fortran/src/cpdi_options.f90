@@ -97,7 +97,10 @@ module cpdi_options
              "coupling chooses by what the solids are: implicit, or explicit for a solid held by a prescribed "// &
              "rigid body), off (the coupled step is the solid's acoustic step), explicit (the solids' explicit "// &
              "steps subcycled inside the water's step) or implicit (explicit with the solids' volumetric "// &
-             "stress implicit in the projection); docs/fsi_incompressible.md") &
+             "stress implicit in the projection); docs/fsi_incompressible.md"), &
+    optdef_t("theta_min", OPT_REAL, 1, 0.1_wp, 0.0_wp, 1.0_wp, .true., .false., CASE_DEFAULT, &
+             "", "", "incompressible: closest the free surface may sit to a water cell's centre, in cells "// &
+             "(the ghost-fluid pressure condition's 1/theta)") &
     ]
   integer(ik), parameter, public :: NOPT = size(OPTIONS)
 

@@ -36,7 +36,7 @@ module cpdi_pressure
   !!   pressure, the level an open tank filled to the same height has at its surface.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_STATE
-  use cpdi_options, only: optset_t
+  use cpdi_options, only: optset_t, opt_value
   use cpdi_multigrid, only: mg_t, mg_alloc, mg_build, mg_apply
   implicit none
   private
@@ -46,7 +46,6 @@ module cpdi_pressure
   integer(ik), parameter, public :: CELL_SOLID = 2
   integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
   integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
-  real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
   real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
@@ -206,11 +205,11 @@ contains
     type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: fw, fa
     if (fw <= 0.5_wp) then
-      surface_theta = THETA_MIN
+      surface_theta = opt_value(mc%ov, 'theta_min')
     else if (fa >= 0.5_wp) then
       surface_theta = 1.0_wp
     else
-      surface_theta = min(1.0_wp, max(THETA_MIN, (fw - 0.5_wp)/(fw - fa)))
+      surface_theta = min(1.0_wp, max(opt_value(mc%ov, 'theta_min'), (fw - 0.5_wp)/(fw - fa)))
     end if
   end function surface_theta
 
