@@ -20,10 +20,6 @@ WALLS = {"open": 0, "slip": 1, "noslip": 2}
 WALL_SIDES = ("left", "right", "bottom", "top")
 MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4, "rigid_body": 5}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
-DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
-              "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
-              "viscous_dissipation", "cg_iterations", "cg_residual", "cg_iterations_total", "correction_work")
-TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection", "pressure_solve")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
                7: "cfl", 8: "lapack", 9: "handle", 10: "alloc", 11: "solve"}
 
@@ -190,6 +186,26 @@ FLUIDS = OPTIONS["fluid"].codes
 TRANSFERS = OPTIONS["transfer"].codes
 PRECONDS = OPTIONS["pressure_precond"].codes
 SOLID_SUBSTEPS = OPTIONS["solid_substeps"].codes
+
+
+def _slots(kind: int) -> tuple[tuple[str, int], ...]:
+    """Names (and widths) of the Fortran's named slots (cpdi_slots): kind 1 diagnostics, 2 timers,
+    3 the full state's particle fields, 4 its leading scalars."""
+    out = []
+    for i in range(1, int(api().cpdi_slot_count(kind)) + 1):
+        name, width, ierr, msg = api().cpdi_slot_info(kind, i)
+        if ierr != 0:  # pragma: no cover - the loop stays inside the table
+            raise CpdiError(ierr, _text(msg), "cpdi_slot_info")
+        out.append((_text(name), int(width)))
+    return tuple(out)
+
+
+DIAG_NAMES = tuple(name for name, _ in _slots(1))
+TIMER_NAMES = tuple(name for name, _ in _slots(2))
+# Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
+FULL_STATE_ROWS = _slots(3)
+FULL_STATE_SCALARS = (*(name for name, _ in _slots(4)), *(f"diag.{d}" for d in DIAG_NAMES),
+                      *(f"timer.{t}" for t in TIMER_NAMES))
 
 
 
@@ -518,8 +534,3 @@ def pressure(sigma: np.ndarray) -> np.ndarray:
     return -(s[:, 0] + s[:, 1] + s[:, 3]) / 3.0
 
 
-# Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
-FULL_STATE_ROWS = (("x", 2), ("v", 2), ("F", 4), ("L", 4), ("sigma", 4), ("r", 4), ("body_force", 2), ("vol", 1),
-                   ("psi", 1), ("jbar", 1), ("water_accel", 2))
-FULL_STATE_SCALARS = ("t", "steps", "smax", "visc_dt", "dt_last", *(f"diag.{d}" for d in DIAG_NAMES),
-                      *(f"timer.{t}" for t in TIMER_NAMES))

@@ -6,6 +6,9 @@ module cpdi_api
   !! so several can coexist in one Python process. Nothing here stops the process.
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_MASS, NPSTATE, NSSTATE, ROW_X, ROW_V, ROW_F, ROW_L, ROW_SIG, ROW_R, ROW_BF, ROW_VOL, &
+                        ROW_PSI, ROW_JBAR, ROW_AW, NROWFIELD, ROW_NAMES, ROW_FIRST, SCAL_T, SCAL_STEPS, SCAL_SMAX, &
+                        SCAL_VISC_DT, SCAL_DT_LAST, NSCALAR, SCALAR_NAMES, DIAG_NAMES, TIMER_NAMES, SLOT_NAME_LEN
   use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
                          CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
   use cpdi_grid, only: grid_init, GRID_PAD
@@ -43,10 +46,10 @@ module cpdi_api
   public :: cpdi_poisson_precond, cpdi_pressure_stats
   ! Every option by name through one table (issue 39 item 1).
   public :: cpdi_check_options, cpdi_option_count, cpdi_option_info
+  ! The names of the diagnostics, timers and full-state rows (cpdi_slots).
+  public :: cpdi_slot_count, cpdi_slot_info
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
-  integer, parameter :: NPSTATE = 27                !! rows per particle of the full state
-  integer, parameter :: NSSTATE = 5 + NDIAG + NTIMER !! scalars of the full state
   public :: cpdi_full_state_size, cpdi_get_full_state, cpdi_set_full_state
 
 contains
@@ -240,7 +243,7 @@ contains
         s%t = 0.0_wp
         s%steps = 0
         s%diag = 0.0_wp
-        s%diag(10) = sum(mass)
+        s%diag(DIAG_MASS) = sum(mass)
         s%timers = 0.0_wp
         s%smax = -1.0_wp
         if (allocated(s%body)) deallocate (s%body)
@@ -620,6 +623,56 @@ contains
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_option
+
+  subroutine cpdi_slot_count(kind, n)
+    !! Named slots of kind 1 diagnostics, 2 timers, 3 fields of the full state's particle rows,
+    !! 4 the full state's leading scalars (then come the diagnostics and the timers); 0 otherwise.
+    integer(c_int), intent(in) :: kind
+    integer(c_int), intent(out) :: n
+    select case (kind)
+    case (1)
+      n = int(NDIAG, c_int)
+    case (2)
+      n = int(NTIMER, c_int)
+    case (3)
+      n = int(NROWFIELD, c_int)
+    case (4)
+      n = int(NSCALAR, c_int)
+    case default
+      n = 0
+    end select
+  end subroutine cpdi_slot_count
+
+  subroutine cpdi_slot_info(kind, i, name, width, ierr, msg)
+    !! Slot i (1-based) of kind (cpdi_slot_count): its name (cpdi_slots) and width (the rows a
+    !! particle field of the full state spans; 1 otherwise).
+    integer(c_int), intent(in) :: kind, i
+    character(len=SLOT_NAME_LEN), intent(out) :: name
+    integer(c_int), intent(out) :: width
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    integer(c_int) :: n
+    name = ''
+    width = 1
+    call cpdi_slot_count(kind, n)
+    if (i < 1 .or. i > n) then
+      call st%set(CPDI_ERR_INPUT, 'slot out of range; use kind 1-4 and 1 .. cpdi_slot_count(kind)')
+    else
+      select case (kind)
+      case (1)
+        name = DIAG_NAMES(i)
+      case (2)
+        name = TIMER_NAMES(i)
+      case (3)
+        name = ROW_NAMES(i)
+        width = int(merge(NPSTATE + 1, ROW_FIRST(min(i + 1, n)), i == n) - ROW_FIRST(i), c_int)
+      case (4)
+        name = SCALAR_NAMES(i)
+      end select
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_slot_info
 
   subroutine cpdi_check_options(handle, ierr, msg)
     !! The rules between a simulation's options (a fixed dt is positive; apic needs the
@@ -1080,24 +1133,24 @@ contains
     call lookup(handle, s, st)
     if (st%ok()) call check_full_state_dims(s, nprow, n, nscal, st)
     if (st%ok()) then
-      pstate(1:2, :) = s%p%x
-      pstate(3:4, :) = s%p%v
-      pstate(5:8, :) = s%p%F
-      pstate(9:12, :) = s%p%L
-      pstate(13:16, :) = s%p%sig
-      pstate(17:20, :) = s%p%r
-      pstate(21:22, :) = s%p%bf
-      pstate(23, :) = s%p%vol
-      pstate(24, :) = s%p%psi
-      pstate(25, :) = s%p%jbar
-      pstate(26:27, :) = s%p%aw
-      sstate(1) = s%t
-      sstate(2) = real(s%steps, wp)
-      sstate(3) = s%smax
-      sstate(4) = s%visc_dt
-      sstate(5) = s%dt_last
-      sstate(6:5 + NDIAG) = s%diag
-      sstate(6 + NDIAG:NSSTATE) = s%timers
+      pstate(ROW_X:ROW_X + 1, :) = s%p%x
+      pstate(ROW_V:ROW_V + 1, :) = s%p%v
+      pstate(ROW_F:ROW_F + 3, :) = s%p%F
+      pstate(ROW_L:ROW_L + 3, :) = s%p%L
+      pstate(ROW_SIG:ROW_SIG + 3, :) = s%p%sig
+      pstate(ROW_R:ROW_R + 3, :) = s%p%r
+      pstate(ROW_BF:ROW_BF + 1, :) = s%p%bf
+      pstate(ROW_VOL, :) = s%p%vol
+      pstate(ROW_PSI, :) = s%p%psi
+      pstate(ROW_JBAR, :) = s%p%jbar
+      pstate(ROW_AW:ROW_AW + 1, :) = s%p%aw
+      sstate(SCAL_T) = s%t
+      sstate(SCAL_STEPS) = real(s%steps, wp)
+      sstate(SCAL_SMAX) = s%smax
+      sstate(SCAL_VISC_DT) = s%visc_dt
+      sstate(SCAL_DT_LAST) = s%dt_last
+      sstate(NSCALAR + 1:NSCALAR + NDIAG) = s%diag
+      sstate(NSCALAR + NDIAG + 1:NSSTATE) = s%timers
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_get_full_state
@@ -1123,16 +1176,18 @@ contains
       if (.not. (finite_all(reshape(pstate, [nprow*n])) .and. finite_all(sstate))) then
         call st%set(CPDI_ERR_INPUT, 'full state contains NaN or Inf; it is damaged, use another checkpoint '// &
                     'or rerun from t = 0')
-      else if (.not. (sstate(1) >= 0.0_wp .and. sstate(2) >= 0.0_wp .and. sstate(2) == aint(sstate(2)) &
-                      .and. sstate(2) < 2.0_wp**53 .and. sstate(4) > 0.0_wp .and. sstate(5) >= 0.0_wp)) then
+      else if (.not. (sstate(SCAL_T) >= 0.0_wp .and. sstate(SCAL_STEPS) >= 0.0_wp &
+                      .and. sstate(SCAL_STEPS) == aint(sstate(SCAL_STEPS)) .and. sstate(SCAL_STEPS) < 2.0_wp**53 &
+                      .and. sstate(SCAL_VISC_DT) > 0.0_wp .and. sstate(SCAL_DT_LAST) >= 0.0_wp)) then
         call st%set(CPDI_ERR_INPUT, 'full state has a negative time or time step, a step count that is not '// &
                     'a whole number, or a viscous limit <= 0; it is damaged, use another checkpoint')
       end if
     end if
     if (st%ok()) then
       do ip = 1, n
-        if (.not. (det2(pstate(5:8, ip)) > 0.0_wp .and. det2(pstate(17:20, ip)) > 0.0_wp .and. &
-                   pstate(23, ip) > 0.0_wp .and. pstate(25, ip) > 0.0_wp)) then
+        if (.not. (det2(pstate(ROW_F:ROW_F + 3, ip)) > 0.0_wp .and. det2(pstate(ROW_R:ROW_R + 3, ip)) > 0.0_wp &
+                   .and. &
+                   pstate(ROW_VOL, ip) > 0.0_wp .and. pstate(ROW_JBAR, ip) > 0.0_wp)) then
           write (buf, '(a,i0,a)') 'full state of particle ', ip, ' has det F, domain area, volume or J <= 0; '// &
             'it is damaged, use another checkpoint or rerun from t = 0'
           call st%set(CPDI_ERR_INPUT, trim(buf))
@@ -1141,24 +1196,24 @@ contains
       end do
     end if
     if (st%ok()) then
-      s%p%x = pstate(1:2, :)
-      s%p%v = pstate(3:4, :)
-      s%p%F = pstate(5:8, :)
-      s%p%L = pstate(9:12, :)
-      s%p%sig = pstate(13:16, :)
-      s%p%r = pstate(17:20, :)
-      s%p%bf = pstate(21:22, :)
-      s%p%vol = pstate(23, :)
-      s%p%psi = pstate(24, :)
-      s%p%jbar = pstate(25, :)
-      s%p%aw = pstate(26:27, :)
-      s%t = sstate(1)
-      s%steps = int(sstate(2), kind(s%steps))
-      s%smax = sstate(3)
-      s%visc_dt = sstate(4)
-      s%dt_last = sstate(5)
-      s%diag = sstate(6:5 + NDIAG)
-      s%timers = sstate(6 + NDIAG:NSSTATE)
+      s%p%x = pstate(ROW_X:ROW_X + 1, :)
+      s%p%v = pstate(ROW_V:ROW_V + 1, :)
+      s%p%F = pstate(ROW_F:ROW_F + 3, :)
+      s%p%L = pstate(ROW_L:ROW_L + 3, :)
+      s%p%sig = pstate(ROW_SIG:ROW_SIG + 3, :)
+      s%p%r = pstate(ROW_R:ROW_R + 3, :)
+      s%p%bf = pstate(ROW_BF:ROW_BF + 1, :)
+      s%p%vol = pstate(ROW_VOL, :)
+      s%p%psi = pstate(ROW_PSI, :)
+      s%p%jbar = pstate(ROW_JBAR, :)
+      s%p%aw = pstate(ROW_AW:ROW_AW + 1, :)
+      s%t = sstate(SCAL_T)
+      s%steps = int(sstate(SCAL_STEPS), kind(s%steps))
+      s%smax = sstate(SCAL_SMAX)
+      s%visc_dt = sstate(SCAL_VISC_DT)
+      s%dt_last = sstate(SCAL_DT_LAST)
+      s%diag = sstate(NSCALAR + 1:NSCALAR + NDIAG)
+      s%timers = sstate(NSCALAR + NDIAG + 1:NSSTATE)
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_full_state

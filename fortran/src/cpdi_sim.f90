@@ -16,6 +16,7 @@ module cpdi_sim
   use cpdi_incompressible, only: incomp_t, FLUID_WEAKLY_COMPRESSIBLE
   use cpdi_motion, only: vtable_t
   use cpdi_loads, only: loads_t
+  use cpdi_slots, only: NDIAG, NTIMER
   use cpdi_options, only: optset_t, opt_value, opt_code, opt_index
   implicit none
   private
@@ -23,13 +24,7 @@ module cpdi_sim
   integer(ik), parameter, public :: UPDATE_USL = 0
   integer(ik), parameter, public :: UPDATE_MUSL = 1
 
-  integer(ik), parameter, public :: NDIAG = 18
-  !! diag: 1 t, 2 dt, 3 steps, 4 kinetic energy, 5 strain energy, 6-7 momentum,
-  !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
-  !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
-  !! 14 viscous dissipation; incompressible water: 15 CG iterations and 16 relative
-  !! residual of the last pressure solve, 17 CG iterations of all steps, 18 work of gravity
-  !! on the volume correction's displacements (not in 8: the correction is no flow)
+  public :: NDIAG, NTIMER   !! diagnostics and timers: their slots are named in cpdi_slots
   integer(ik), parameter, public :: MIN_PER_THREAD = 16384
   !! particles per thread below which a step uses fewer threads: a step has about 20
   !! barriers, and a small step on 2 threads can run slower than on 1 (passive waits;
@@ -41,10 +36,6 @@ module cpdi_sim
   integer(ik), parameter, public :: PROBE_COST = 100  !! ... or further, to PROBE_COST (t_slow / t_fast - 1)
   !! steps, so that a probe of a much slower team costs at most about 1 % of the run: a
   !! 1-thread probe beside a 16-thread team costs some 15 of its steps, 12 % of 128 steps
-  integer(ik), parameter, public :: NTIMER = 8
-  !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
-  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
-  !! 8 pressure solve (incompressible water)
 
   type, public :: options_t
     integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
