@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.solver import CASE_NO, CASE_OPTIONAL, OPTIONS, CpdiError, Option, Simulation
+
 
 class CaseError(ValueError):
     """A case file is malformed; the message names the key and the fix."""
@@ -88,6 +90,68 @@ PROBE = {
                      check=lambda v: None if v >= 1 else "must be at least 1"),
 }
 
+# [solver]: the solver's options come from the Fortran option table (fortran/src/cpdi_options.f90,
+# read by harness.solver at import): name, type, default, range, unit and doc are the table's, so a
+# new option is a case key with no edit here. The keys below them are the harness's own.
+# A case file's default where it differs from the core's: a case falls under earth's gravity, and
+# lets the coupling choose how deformable solids are stepped in incompressible water.
+CASE_DEFAULTS = {"gravity": [0.0, -9.81], "solid_substeps": "auto"}
+
+
+def _option_check(opt: Option) -> Callable[[Any], str | None] | None:
+    """The range of a table row as a schema check (None: unbounded, a flag or an enum)."""
+    if opt.lo is not None and opt.hi is not None:
+        chk = in_range(opt.lo, opt.hi, lo_open=opt.lo_open, hi_open=opt.hi_open)
+        return (lambda v: next(filter(None, map(chk, v)), None)) if opt.ncomp > 1 else chk
+    if opt.lo == 0.0 and opt.hi is None:
+        return positive if opt.lo_open else nonneg
+    if opt.lo is not None or opt.hi is not None:  # pragma: no cover - no such row yet
+        lo = -math.inf if opt.lo is None else opt.lo
+        hi = math.inf if opt.hi is None else opt.hi
+        return in_range(lo, hi, lo_open=opt.lo_open or opt.lo is None, hi_open=opt.hi_open or opt.hi is None)
+    return None
+
+
+def _option_key(opt: Option) -> Key:
+    kind = {"real": "float" if opt.ncomp == 1 else "vec2", "int": "int", "bool": "bool", "enum": "choice"}[opt.kind]
+    default = None if opt.in_case == CASE_OPTIONAL else CASE_DEFAULTS.get(opt.name, opt.python_default)
+    return Key(kind, opt.help, opt.unit, default=default, choices=opt.choices, check=_option_check(opt))
+
+
+def solver_options(solver: dict[str, Any]) -> dict[str, Any]:
+    """The Simulation.set_options arguments of a validated [solver] table (dt only when given)."""
+    return {name: solver[name] for name, opt in OPTIONS.items() if opt.in_case != CASE_NO and name in solver}
+
+
+# The harness's own [solver] keys, each placed after the option named first (the order of
+# cases/README.md's table and of a loaded case's keys).
+HARNESS_SOLVER_KEYS: tuple[tuple[str, str, Key], ...] = (
+    ("dt", "t_end", Key("float", "simulated end time", "s", required=True, check=positive)),
+    ("gravity", "body_acceleration", Key("vec2", "uniform, constant body force per unit mass on every particle, "
+                                                 "added to gravity through the solver's per-particle body force (a "
+                                                 "tank accelerating at a: -a, the frame's inertial force)", "m/s^2",
+                                         default=[0.0, 0.0])),
+    ("gravity", "output_every", Key("float", "interval between snapshots", "s", check=positive)),
+    ("gravity", "series_every", Key("float", "interval between series.csv rows (default output_every/10)", "s",
+                                    check=positive)),
+    ("flip", "max_steps", Key("int", "abort after this many steps", default=50_000_000, check=positive)),
+    ("flip", "max_estimated_steps", Key("float", "refuse a run whose first time step forecasts more steps than "
+                                                 "this to t_end (a hopeless run); raise it to run anyway",
+                                        default=1.0e8, check=positive)),
+)
+
+
+def _solver_schema() -> dict[str, Key]:
+    out: dict[str, Key] = {}
+    for name, opt in OPTIONS.items():
+        if opt.in_case != CASE_NO:
+            out[name] = _option_key(opt)
+        out.update({k: key for after, k, key in HARNESS_SOLVER_KEYS if after == name})
+    return out
+
+
+SOLVER: dict[str, Key] = _solver_schema()
+
 SCHEMA: dict[str, Key] = {
     "case": Key("table", "identity of the case", required=True, sub={
         "name": Key("str", "short name, used for the run directory", required=True),
@@ -103,62 +167,7 @@ SCHEMA: dict[str, Key] = {
             side: Key("choice", f"{side} wall", choices=WALL, default="slip")
             for side in ("left", "right", "bottom", "top")}),
     }),
-    "solver": Key("table", "time integration and discretisation", required=True, sub={
-        "shape": Key("choice", "interpolation", choices=("mpm", "gimp", "cpdi"), default="cpdi"),
-        "update": Key("choice", "update scheme", choices=("usl", "musl"), default="musl"),
-        "projection": Key("choice", "volumetric anti-locking projection of ln J increments and mean stress: "
-                          "none, cell (cell-wise constant) or nodal (bilinear, banded LAPACK solve)",
-                          choices=("none", "cell", "nodal"), default="none"),
-        "projection_stabilization": Key("float", "beta: the projected volumetric fields keep beta of each particle's "
-                                                 "own value, giving sub-cell (hourglass) motions a stiffness beta K",
-                                        default=0.0, check=in_range(0.0, 1.0)),
-        "kinematics": Key("choice", "log: finite strain (Hencky); small: sym(F) - I",
-                          choices=("log", "small"), default="log"),
-        "domain_scaling": Key("bool", "Homel et al. (2016) CPDI domain scaling", default=False),
-        "cfl": Key("float", "Courant number of the explicit step", default=0.3,
-                   check=in_range(0.0, 1.0, lo_open=True)),
-        "dt": Key("float", "fixed time step (overrides cfl; refused if above the stable limit)", "s",
-                  check=positive),
-        "t_end": Key("float", "simulated end time", "s", required=True, check=positive),
-        "gravity": Key("vec2", "gravitational acceleration", "m/s^2", default=[0.0, -9.81]),
-        "body_acceleration": Key("vec2", "uniform, constant body force per unit mass on every particle, added to "
-                                         "gravity through the solver's per-particle body force (a tank accelerating "
-                                         "at a: -a, the frame's inertial force)", "m/s^2", default=[0.0, 0.0]),
-        "output_every": Key("float", "interval between snapshots", "s", check=positive),
-        "series_every": Key("float", "interval between series.csv rows (default output_every/10)", "s",
-                            check=positive),
-        "damping": Key("float", "Cundall local damping coefficient (0 = none)", default=0.0,
-                       check=in_range(0.0, 1.0, hi_open=True)),
-        "flip": Key("float", "FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)", default=1.0,
-                    check=in_range(0.0, 1.0)),
-        "max_steps": Key("int", "abort after this many steps", default=50_000_000, check=positive),
-        "max_estimated_steps": Key("float", "refuse a run whose first time step forecasts more steps than this to "
-                                            "t_end (a hopeless run); raise it to run anyway", default=1.0e8,
-                                   check=positive),
-        "fluid": Key("choice", "water model: weakly_compressible (the paper's explicit model, p from K ln J; "
-                               "time step from the speed of sound) or incompressible (pressure projection on a "
-                               "staggered grid; time step from the flow; water-only cases for now)",
-                     choices=("weakly_compressible", "incompressible"), default="weakly_compressible"),
-        "transfer": Key("choice", "particle-grid velocity transfer: flip (FLIP/PIC blend set by flip) or apic "
-                                  "(affine PIC; incompressible only)", choices=("flip", "apic"), default="flip"),
-        "cg_tolerance": Key("float", "incompressible: relative residual of the pressure solve", default=1e-8,
-                            check=in_range(0.0, 1.0, lo_open=True, hi_open=True)),
-        "cg_max_iterations": Key("int", "incompressible: CG iteration limit (0: 4 sqrt(cells) + 200)", default=0,
-                                 check=nonneg),
-        "volume_correction": Key("float", "incompressible: an over-filled cell gets div v = beta (fill - 1) / dt",
-                                 default=0.5, check=in_range(0.0, 2.0)),
-        "pressure_precond": Key("choice", "incompressible: preconditioner of the pressure CG, mic0 (incomplete "
-                                          "Cholesky; iterations grow like sqrt(cells)) or multigrid (a geometric "
-                                          "multigrid V-cycle; iterations about constant)",
-                                choices=("mic0", "multigrid"), default="mic0"),
-        "solid_substeps": Key("choice", "incompressible water with deformable solids: auto (the coupling chooses "
-                                        "by what the solids are: implicit, or explicit for a solid held by a "
-                                        "prescribed rigid body), off (the coupled step is the solid's acoustic "
-                                        "step), explicit (the solids' explicit steps subcycled inside the water's "
-                                        "step) or implicit (explicit with the solids' volumetric stress implicit "
-                                        "in the projection); docs/fsi_incompressible.md",
-                              choices=("auto", "off", "explicit", "implicit"), default="auto"),
-    }),
+    "solver": Key("table", "time integration and discretisation", required=True, sub=SOLVER),
     "materials": Key("list", "materials, referenced by name from bodies", required=True),
     "bodies": Key("list", "bodies filled with particles", required=True),
     "contact": Key("table", "Bardenhagen multi-velocity-field frictional contact between contact groups", sub={
@@ -434,6 +443,19 @@ def _validate_geometry(where: str, geo: dict, grid: dict) -> None:
         raise CaseError(f"{where} spans {bmin}-{bmax}, outside the grid {lo}-{hi}; enlarge [grid] size or move it")
 
 
+def _check_solver_options(solver: dict[str, Any]) -> None:
+    """The [solver] options as the core checks them, on a scratch simulation: each value against
+    its table row, and the rules between options (cpdi_check_options), so that a run the core
+    would refuse is refused at load time, naming the key."""
+    sim = Simulation()
+    try:
+        sim.set_options(**solver_options(solver))
+    except CpdiError as exc:
+        raise CaseError(f"[solver] {exc}") from None
+    finally:
+        sim.close()
+
+
 def validate(raw: dict[str, Any]) -> dict[str, Any]:
     """Validate a parsed case and return it with every default filled in."""
     data = _validate_table("", SCHEMA, raw)
@@ -516,6 +538,7 @@ def validate(raw: dict[str, Any]) -> dict[str, Any]:
                     raise CaseError(f"probes.{name}.{k} applies to kind = \"surface_pressure\" only; remove it")
         probes[name] = p
     data["probes"] = probes
+    _check_solver_options(data["solver"])   # last: each key alone was checked above
     return data
 
 

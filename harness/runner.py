@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from harness import checkpoint
-from harness.cases import Case, CaseError
+from harness.cases import Case, CaseError, solver_options
 from harness.output import SeriesWriter, SnapshotWriter, corners, write_json
 from harness.probes import ProbeSet, SurfacePressure
 from harness.seeding import ParticleSet, seed
@@ -114,14 +114,7 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
     contact = case["contact"]
     sim.set_bodies(parts.group, contact=contact["enabled"], friction=contact["friction"],
                    fullness=contact["fullness"])
-    sim.set_options(shape=s["shape"], update=s["update"], projection=s["projection"],
-                    kinematics=s["kinematics"], domain_scaling=s["domain_scaling"], dt=s.get("dt"),
-                    cfl=s["cfl"], gravity=s["gravity"], damping=s["damping"], flip=s["flip"],
-                    projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
-                    transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
-                    cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
-                    pressure_precond=s["pressure_precond"],
-                    solid_substeps=s["solid_substeps"])
+    sim.set_options(**solver_options(s))
     if any(s["body_acceleration"]):
         sim.set_body_force(np.tile(np.asarray(s["body_acceleration"], dtype=np.float64), (parts.x.shape[0], 1)))
     return sim, parts

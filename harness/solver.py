@@ -16,22 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SHAPES = {"mpm": 0, "gimp": 1, "cpdi": 2}
-UPDATES = {"usl": 0, "musl": 1}
 WALLS = {"open": 0, "slip": 1, "noslip": 2}
 WALL_SIDES = ("left", "right", "bottom", "top")
 MODELS = {"hencky": 1, "newtonian_fluid": 2, "rigid": 3, "neo_hookean": 4, "rigid_body": 5}
-KINEMATICS = {"log": 0, "small": 1}
-PROJECTIONS = {"none": 0, "cell": 1, "nodal": 2}
-FLUIDS = {"weakly_compressible": 0, "incompressible": 1}
-TRANSFERS = {"flip": 0, "apic": 1}
-PRECONDS = {"mic0": 0, "multigrid": 1}
-SOLID_SUBSTEPS = {"off": 0, "explicit": 1, "implicit": 2, "auto": 3}
 SLOTS = {"mpm": 4, "gimp": 9, "cpdi": 16}
-DIAG_NAMES = ("t", "dt", "steps", "kinetic_energy", "strain_energy", "momentum_x", "momentum_y",
-              "gravity_work", "body_force_work", "mass", "max_signal_speed", "wall_clamps", "friction_work",
-              "viscous_dissipation", "cg_iterations", "cg_residual", "cg_iterations_total", "correction_work")
-TIMER_NAMES = ("shape", "p2g", "grid", "g2p", "deformation", "stress", "projection", "pressure_solve")
 ERROR_NAMES = {1: "input", 2: "state", 3: "nan", 4: "outside", 5: "jacobian", 6: "domain",
                7: "cfl", 8: "lapack", 9: "handle", 10: "alloc", 11: "solve"}
 
@@ -112,6 +100,113 @@ def _particle_array(a, n: int, width: int, what: str) -> np.ndarray:
         want = (n,) if width == 1 else (n, width)
         raise CpdiError(1, f"{what} has shape {arr.shape}, expected {want}")
     return np.asfortranarray(arr.T)
+
+
+# -- the solver's options: read from the Fortran table (cpdi_options) at import ----------
+_KINDS = {1: "real", 2: "int", 3: "bool", 4: "enum"}
+CASE_NO, CASE_DEFAULT, CASE_OPTIONAL = 0, 1, 2   # Option.in_case (cpdi_options)
+
+
+@dataclass(frozen=True)
+class Option:
+    """One row of the solver's option table (fortran/src/cpdi_options.f90)."""
+
+    name: str
+    kind: str  # "real", "int", "bool" or "enum"
+    ncomp: int  # 1, or 2 for a vector (gravity)
+    default: float  # every component's; an enum's: its index
+    lo: float | None  # None: unbounded (and for bool / enum)
+    hi: float | None
+    lo_open: bool
+    hi_open: bool
+    in_case: int  # CASE_NO, CASE_DEFAULT or CASE_OPTIONAL
+    choices: tuple[str, ...]  # an enum's value names, in index order
+    unit: str
+    help: str
+
+    @property
+    def codes(self) -> dict[str, int]:
+        """An enum's value names and their codes."""
+        return {c: i for i, c in enumerate(self.choices)}
+
+    @property
+    def python_default(self):
+        """The default as set_options and a case file spell it: a value name, a bool, [x, y]."""
+        if self.kind == "enum":
+            return self.choices[int(self.default)]
+        if self.kind == "bool":
+            return bool(self.default)
+        if self.kind == "int":
+            return int(self.default)
+        return [self.default] * self.ncomp if self.ncomp > 1 else self.default
+
+    def encode(self, value) -> np.ndarray:
+        """The Fortran values of a Python value (an enum by name, a bool, a number or [x, y])."""
+        if self.kind == "enum":
+            if value not in self.choices:
+                raise CpdiError(1, f"{self.name} = {value!r} is not available; use one of {sorted(self.choices)}")
+            return np.array([float(self.codes[value])])
+        if self.kind == "bool":
+            return np.array([float(bool(value))])
+        if self.ncomp > 1:
+            return _f64(value, (self.ncomp,), self.name).copy()
+        return np.array([float(value)])
+
+
+def _text(b) -> str:
+    return (b.decode("ascii", "replace") if isinstance(b, bytes) else str(b)).strip()
+
+
+def _read_options() -> dict[str, Option]:
+    """The option table, row by row, from the extension."""
+    out = {}
+    for i in range(1, int(api().cpdi_option_count()) + 1):
+        name, kind, ncomp, default, lo, hi, lo_open, hi_open, in_case, choices, unit, help_, ierr, msg = \
+            api().cpdi_option_info(i)
+        if ierr != 0:  # pragma: no cover - the loop stays inside the table
+            raise CpdiError(ierr, _text(msg), "cpdi_option_info")
+        k = _KINDS[int(kind)]
+        bounded = k in ("real", "int")
+        out[_text(name)] = Option(
+            name=_text(name), kind=k, ncomp=int(ncomp), default=float(default),
+            lo=float(lo) if bounded and abs(lo) < 1e300 else None,
+            hi=float(hi) if bounded and abs(hi) < 1e300 else None,
+            lo_open=bool(lo_open), hi_open=bool(hi_open), in_case=int(in_case),
+            choices=tuple(_text(choices).split("|")) if k == "enum" else (), unit=_text(unit), help=_text(help_))
+    return out
+
+
+OPTIONS: dict[str, Option] = _read_options()
+# The enum options' codes, by the names other modules import (derived from the table, not a copy).
+SHAPES = OPTIONS["shape"].codes
+UPDATES = OPTIONS["update"].codes
+KINEMATICS = OPTIONS["kinematics"].codes
+PROJECTIONS = OPTIONS["projection"].codes
+FLUIDS = OPTIONS["fluid"].codes
+TRANSFERS = OPTIONS["transfer"].codes
+PRECONDS = OPTIONS["pressure_precond"].codes
+SOLID_SUBSTEPS = OPTIONS["solid_substeps"].codes
+
+
+def _slots(kind: int) -> tuple[tuple[str, int], ...]:
+    """Names (and widths) of the Fortran's named slots (cpdi_slots): kind 1 diagnostics, 2 timers,
+    3 the full state's particle fields, 4 its leading scalars."""
+    out = []
+    for i in range(1, int(api().cpdi_slot_count(kind)) + 1):
+        name, width, ierr, msg = api().cpdi_slot_info(kind, i)
+        if ierr != 0:  # pragma: no cover - the loop stays inside the table
+            raise CpdiError(ierr, _text(msg), "cpdi_slot_info")
+        out.append((_text(name), int(width)))
+    return tuple(out)
+
+
+DIAG_NAMES = tuple(name for name, _ in _slots(1))
+TIMER_NAMES = tuple(name for name, _ in _slots(2))
+# Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
+FULL_STATE_ROWS = _slots(3)
+FULL_STATE_SCALARS = (*(name for name, _ in _slots(4)), *(f"diag.{d}" for d in DIAG_NAMES),
+                      *(f"timer.{t}" for t in TIMER_NAMES))
+
 
 
 @dataclass(frozen=True)
@@ -223,48 +318,31 @@ class Simulation:
               _particle_array(r, n, 4, "r"), (mat.astype(np.int64) + 1).astype(np.int32))
         self._n = n
 
-    def set_options(self, *, shape: str = "cpdi", update: str = "musl", projection: str = "none",
-                    kinematics: str = "log", domain_scaling: bool = False, dt: float | None = None,
-                    cfl: float = 0.3, gravity: Sequence[float] = (0.0, 0.0), damping: float = 0.0,
-                    flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
-                    fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
-                    cg_max_iterations: int = 0, volume_correction: float = 0.5,
-                    pressure_precond: str = "mic0",
-                    solid_substeps: str = "off") -> None:
-        """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
+    def set_options(self, **options) -> None:
+        """Solver options by name, every other option at its default: the names, kinds, defaults
+        and ranges are the Fortran table's (:data:`OPTIONS`, fortran/src/cpdi_options.f90; the case
+        schema's [solver] keys are the same table, cases/README.md). An enum is given by its value's
+        name (``shape="gimp"``), a flag as a bool, ``gravity`` as (gx, gy). ``dt`` given means a
+        fixed time step (the table's ``fixed_dt`` is set from it), otherwise ``cfl`` sets it.
         ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
-        ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG
-        settings and ``volume_correction`` belong to it; how solids join its projection is chosen by
-        what they are, docs/fsi_incompressible.md); ``pressure_precond`` the pressure CG's
-        preconditioner, ``mic0`` or ``multigrid`` (docs/incompressible_water.md); ``solid_substeps``
-        whether deformable solids in that water are subcycled inside its step
-        (docs/fsi_incompressible.md)."""
-        table = (("shape", shape, SHAPES), ("update", update, UPDATES), ("projection", projection, PROJECTIONS),
-                 ("kinematics", kinematics, KINEMATICS))
-        codes = []
-        for key, value, allowed in table:
-            if value not in allowed:
-                raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
-            codes.append(allowed[value])
-        iopt = np.array(codes + [int(bool(domain_scaling)), int(dt is not None)], dtype=np.int32)
-        g = _f64(gravity, (2,), "gravity")
-        ropt = np.array([cfl, g[0], g[1], damping, dt if dt is not None else 0.0, flip, lcrit,
-                         projection_stabilization], dtype=np.float64)
-        _call("cpdi_set_options", self._handle, iopt, ropt)
-        for key, value, allowed in (("fluid", fluid, FLUIDS), ("transfer", transfer, TRANSFERS),
-                                    ("pressure_precond", pressure_precond, PRECONDS),
-                                    ("solid_substeps", solid_substeps, SOLID_SUBSTEPS)):
-            if value not in allowed:
-                raise CpdiError(1, f"{key} = {value!r} is not available; use one of {sorted(allowed)}")
-            _call("cpdi_set_option", self._handle, key, float(allowed[value]))
-        if transfer == "apic" and fluid != "incompressible":
-            raise CpdiError(1, "transfer = 'apic' is available with fluid = 'incompressible' only; "
-                               "use transfer = 'flip' (with flip) for the weakly compressible model")
-        for key, value in (("cg_tolerance", cg_tolerance), ("cg_max_iterations", cg_max_iterations),
-                           ("volume_correction", volume_correction)):
-            _call("cpdi_set_option", self._handle, key, float(value))
-        self._shape = shape
-        self._fluid = fluid
+        ``incompressible`` (pressure projection on a staggered grid; ``transfer``, the CG settings and
+        ``volume_correction`` belong to it; docs/fsi_incompressible.md, docs/incompressible_water.md).
+        Each value is checked by the table's row in Fortran, the rules between options by
+        ``cpdi_check_options``."""
+        unknown = [k for k in options if k not in OPTIONS or k == "fixed_dt"]
+        if unknown:
+            names = sorted(k for k in OPTIONS if k != "fixed_dt")
+            raise CpdiError(1, f"unknown solver option {unknown[0]!r}; use one of {names}")
+        dt = options.get("dt")
+        values = {name: opt.python_default for name, opt in OPTIONS.items()}
+        values.update({k: v for k, v in options.items() if k != "dt"})
+        values["fixed_dt"] = dt is not None
+        values["dt"] = dt if dt is not None else OPTIONS["dt"].default
+        for name, opt in OPTIONS.items():
+            _call("cpdi_set_option", self._handle, name, opt.encode(values[name]))
+        _call("cpdi_check_options", self._handle)
+        self._shape = values["shape"]
+        self._fluid = values["fluid"]
 
     def set_bodies(self, body, contact: bool = False, friction: float = 0.0, fullness: float = 0.9) -> None:
         """Body index (n,) 0-based of every particle; with contact each body gets its own
@@ -456,8 +534,3 @@ def pressure(sigma: np.ndarray) -> np.ndarray:
     return -(s[:, 0] + s[:, 1] + s[:, 3]) / 3.0
 
 
-# Layout of Simulation.get_full_state (cpdi_get_full_state): particle rows and scalars.
-FULL_STATE_ROWS = (("x", 2), ("v", 2), ("F", 4), ("L", 4), ("sigma", 4), ("r", 4), ("body_force", 2), ("vol", 1),
-                   ("psi", 1), ("jbar", 1), ("water_accel", 2))
-FULL_STATE_SCALARS = ("t", "steps", "smax", "visc_dt", "dt_last", *(f"diag.{d}" for d in DIAG_NAMES),
-                      *(f"timer.{t}" for t in TIMER_NAMES))

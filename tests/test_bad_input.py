@@ -167,7 +167,7 @@ def test_degenerate_or_inverted_domain_is_refused_naming_the_particle(r):
 @pytest.mark.parametrize("options, message", [
     ({"cfl": 0.0}, "cfl"), ({"cfl": 1.0 + 1e-9}, "cfl"),
     ({"lcrit": 1.0 + 1e-9}, "lcrit"), ({"lcrit": 0.0}, "lcrit"), ({"flip": 1.0 + 1e-9}, "flip"),
-    ({"damping": 1.0}, "damping"), ({"projection_stabilization": 1.0 + 1e-9}, "stabilisation"),
+    ({"damping": 1.0}, "damping"), ({"projection_stabilization": 1.0 + 1e-9}, "projection_stabilization"),
 ])
 def test_option_bounds_are_refused(options, message):
     sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
@@ -316,18 +316,66 @@ def test_grid_beyond_2e8_nodes_is_refused_before_any_allocation(ncell):
     assert out.stdout.startswith("input ") and "more than 2e8 nodes" in out.stdout, out.stdout
 
 
-@pytest.mark.parametrize("flags", [(2, 0), (0, 2), (-1, 0), (0, -1)])
-def test_option_flags_are_zero_or_one(flags):
-    """domain_scaling and fixed_dt reach the Fortran API as integer flags; a caller other than
-    Simulation.set_options (which passes bools) can give anything: 2 and -1 are refused, alone."""
+@pytest.mark.parametrize("name", ["domain_scaling", "fixed_dt"])
+@pytest.mark.parametrize("value", [2.0, -1.0, 0.5])
+def test_option_flags_are_zero_or_one(name, value):
+    """domain_scaling and fixed_dt reach the Fortran API as numbers; a caller other than
+    Simulation.set_options (which passes bools) can give anything: 2, -1 and 0.5 are refused."""
     from harness.solver import _call
 
     sim = Simulation()
-    iopt = np.array([2, 1, 0, 0, *flags], dtype=np.int32)
-    ropt = np.array([0.3, 0.0, -9.81, 0.0, 0.0, 1.0, 0.5, 0.0])
-    with pytest.raises(CpdiError, match="flags: 0 or 1"):
-        _call("cpdi_set_options", sim._handle, iopt, ropt)
-    _call("cpdi_set_options", sim._handle, np.array([2, 1, 0, 0, 1, 0], dtype=np.int32), ropt)
+    with pytest.raises(CpdiError, match=f"{name} is a flag: 0 or 1"):
+        _call("cpdi_set_option", sim._handle, name, [value])
+    _call("cpdi_set_option", sim._handle, name, [1.0])
+    sim.close()
+
+
+@pytest.mark.parametrize("name, values, message", [
+    ("shape", [3.0], "shape must be one of 0 (mpm), 1 (gimp), 2 (cpdi), got 3"),
+    ("shape", [1.5], "shape must be one of"),
+    ("cfl", [0.0], "cfl = 0 must lie in (0, 1]"),
+    ("cg_max_iterations", [2.5], "cg_max_iterations must be a whole number, got 2.5"),
+    ("cg_max_iterations", [1.0e9], "cg_max_iterations = 1000000000 must lie in [0, 1000000000)"),
+    ("gravity", [0.0], "gravity takes 2 value(s), got 1"),
+    ("cfll", [0.3], "unknown solver option 'cfll'; use one of: shape, update"),
+])
+def test_the_option_table_refuses_in_one_place(name, values, message):
+    """cpdi_set_option checks every option against its row of the Fortran table (kind, components,
+    range), naming the option and what it accepts; the refused value is not stored."""
+    from harness.solver import _call
+
+    sim = Simulation()
+    with pytest.raises(CpdiError) as ei:
+        _call("cpdi_set_option", sim._handle, name, values)
+    assert message in str(ei.value), str(ei.value)
+    sim.close()
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"transfer": "apic"}, "transfer = 'apic' is available with fluid = 'incompressible' only"),
+    ({"dt": 0.0}, "a fixed time step dt must be positive"),
+])
+def test_rules_between_options_are_refused(options, message):
+    """The rules between two rows of the table (cpdi_check_options): Simulation.set_options
+    runs them, and so does cpdi_advance for a caller that sets options one by one."""
+    from harness.solver import _call
+
+    sim = make_sim(good_parts(), ncell=(10, 10), h=0.1)
+    with pytest.raises(CpdiError, match=message):
+        sim.set_options(**options)
+    sim.set_options()
+    _call("cpdi_set_option", sim._handle, "transfer", [1.0])   # apic, the water weakly compressible
+    with pytest.raises(CpdiError, match="apic"):
+        sim.advance(1e-4)
+    sim.close()
+
+
+def test_unknown_set_options_keyword_is_refused():
+    sim = Simulation()
+    with pytest.raises(CpdiError, match="unknown solver option 'cfll'"):
+        sim.set_options(cfll=0.3)
+    with pytest.raises(CpdiError, match="unknown solver option 'fixed_dt'"):
+        sim.set_options(fixed_dt=True)   # set by giving dt
     sim.close()
 
 

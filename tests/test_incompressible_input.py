@@ -56,9 +56,12 @@ def test_incompressible_refuses_damping_and_projection():
 
 
 def test_apic_needs_incompressible():
-    case = cases.load(TANK, ['solver.fluid="weakly_compressible"', 'solver.transfer="apic"'])
-    with pytest.raises(CpdiError, match="apic.*incompressible"):
-        runner.build(case)
+    """A rule between two options (cpdi_check_options) refuses the case as it loads, not at its run."""
+    with pytest.raises(CaseError, match=r"\[solver\] transfer = 'apic' is available with fluid = 'incompressible'"):
+        cases.load(TANK, ['solver.fluid="weakly_compressible"', 'solver.transfer="apic"'])
+    case = cases.load(TANK, ['solver.fluid="weakly_compressible"'])
+    sim, _ = runner.build(case)   # the same case with flip builds
+    sim.close()
 
 
 def test_non_converging_solve_names_residual_and_fix(tmp_path):
@@ -80,3 +83,28 @@ def test_incompressible_water_needs_no_bulk_modulus():
     assert "bulk_modulus" not in mats[0]
     data = cases.validate({**raw, "materials": mats})
     assert data["solver"]["fluid"] == "incompressible"
+
+
+@pytest.mark.parametrize("theta_min, theta", [(0.1, 0.5), (1.0, 1.0)])
+def test_theta_min_is_where_the_surface_condition_sits(theta_min, theta):
+    """[solver] theta_min (a row of the Fortran option table and nothing else, issue 39 item 1)
+    reaches the ghost-fluid surface: the resting tank's surface lies on the top water cells' upper
+    faces, half a cell above their centres (theta = 0.5); theta_min = 1 puts p = 0 a whole cell
+    above them. The top cell's pressure is then rho g h theta, the hydrostatic step below it rho g h
+    either way."""
+    case = cases.load(TANK, [f"solver.theta_min={theta_min}", "solver.t_end=0.02", "solver.output_every=0.02"])
+    sim, _ = runner.build(case)
+    sim.advance(0.02)
+    g = sim.grid_pressure()
+    sim.close()
+    p, water = g["pressure"], g["water"]
+    col = p.shape[0] // 2
+    top = max(j for j in range(p.shape[1]) if water[col, j] > 0)
+    rho_g_h = 1000.0 * 9.81 * case["grid"]["cell"]
+    assert p[col, top] == pytest.approx(theta * rho_g_h, rel=1e-6)
+    assert p[col, top - 1] - p[col, top] == pytest.approx(rho_g_h, rel=1e-6)
+
+
+def test_theta_min_out_of_range_is_refused_at_load():
+    with pytest.raises(CaseError, match=r"solver.theta_min = 0.0 must lie in \(0.0, 1.0\]"):
+        cases.load(TANK, ["solver.theta_min=0.0"])

@@ -56,3 +56,50 @@ def test_cli_refuses_each_new_key_with_one_line_and_status_2():
         assert code == 2, (path.name, err)
         lines = err.strip().splitlines()
         assert len(lines) == 1 and expect in lines[0], (path.name, err)
+
+
+def _outside(opt):
+    """Values just outside each finite bound of an option's range, and the bounds that are allowed."""
+    import math
+
+    bad, good = [], []
+    for bound, is_open, away in ((opt.lo, opt.lo_open, -math.inf), (opt.hi, opt.hi_open, math.inf)):
+        if bound is None:
+            continue
+        beyond = math.nextafter(bound, away)
+        bad.append(bound if is_open else beyond)
+        if not is_open:
+            good.append(bound)
+    if opt.kind == "int":
+        bad = [math.floor(b) if b < (opt.lo if opt.lo is not None else 0) + 0.5 else math.ceil(b) for b in bad]
+        good = [int(g) for g in good]
+    return bad, good
+
+
+def _bounded_options():
+    from harness.solver import CASE_NO, OPTIONS
+
+    return [o for o in OPTIONS.values() if o.in_case != CASE_NO and o.ncomp == 1 and (o.lo, o.hi) != (None, None)]
+
+
+@pytest.mark.parametrize("opt", _bounded_options(), ids=lambda o: o.name)
+def test_every_bounded_option_is_refused_at_load_as_the_core_refuses_it(opt):
+    """The case schema's range of each [solver] option and the Fortran table's check are the same
+    range: just outside a bound is refused by both (at load, naming the key; by cpdi_set_option),
+    a closed bound is accepted by both (issue 39 item 1)."""
+    from harness.solver import CpdiError, Simulation
+
+    path = Path(__file__).parent.parent / "cases" / "water_column.toml"
+    bad, good = _outside(opt)
+    assert bad, f"{opt.name}: a bounded option needs a value outside its range"
+    for value in bad:
+        with pytest.raises(CaseError, match=rf"solver\.{opt.name} = "):
+            cases.load(path, [f"solver.{opt.name}={value!r}"])
+        sim = Simulation()
+        with pytest.raises(CpdiError, match=opt.name):
+            sim.set_options(**{opt.name: value})
+        sim.close()
+    for value in good:
+        if opt.name == "dt" and value == 0.0:
+            continue   # dt = 0 is inside the row's range; the rule fixed dt > 0 refuses it (70_fixed_dt_zero)
+        cases.load(path, [f"solver.{opt.name}={value!r}"])

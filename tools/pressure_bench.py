@@ -41,7 +41,7 @@ def measure(cell: float, tstar: float, steps: int) -> dict:
     out = {"cell": cell, "H_over_h": round(H / cell), "cells": ncell, "particles": len(parts.x), "t_star": tstar,
            "water_cells": None}
     for name in ("mic0", "multigrid"):
-        _call("cpdi_set_option", sim._handle, "pressure_precond", float(PRECONDS[name]))
+        _call("cpdi_set_option", sim._handle, "pressure_precond", [float(PRECONDS[name])])
         sim.set_full_state(full["particles"], full["scalars"])
         phys, total, solve_s = [], [], []
         wall0 = time.perf_counter()

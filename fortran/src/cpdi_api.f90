@@ -6,25 +6,26 @@ module cpdi_api
   !! so several can coexist in one Python process. Nothing here stops the process.
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_MASS, NPSTATE, NSSTATE, ROW_X, ROW_V, ROW_F, ROW_L, ROW_SIG, ROW_R, ROW_BF, ROW_VOL, &
+                        ROW_PSI, ROW_JBAR, ROW_AW, NROWFIELD, ROW_NAMES, ROW_FIRST, SCAL_T, SCAL_STEPS, SCAL_SMAX, &
+                        SCAL_VISC_DT, SCAL_DT_LAST, NSCALAR, SCALAR_NAMES, DIAG_NAMES, TIMER_NAMES, SLOT_NAME_LEN
   use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
                          CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
-  use cpdi_shape, only: shape_count, shape_slot, SHAPE_MPM, SHAPE_CPDI
-  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID, KIN_LOG, KIN_SMALL
+  use cpdi_shape, only: shape_count, shape_slot
+  use cpdi_materials, only: material_init, NMATPROP, MAT_RIGID, MAT_FLUID
   use cpdi_kinematics, only: log_strain, log_strain_lapack, det2, map_domains
   use cpdi_projection, only: projection_alloc, project_scalar
-  use cpdi_sim, only: sim_t, NDIAG, NTIMER, UPDATE_USL, UPDATE_MUSL
+  use cpdi_sim, only: sim_t, NDIAG, NTIMER, sim_apply_options
+  use cpdi_options, only: OPTIONS, NOPT, OPT_NAME_LEN, OPT_CHOICE_LEN, OPT_UNIT_LEN, OPT_HELP_LEN, opt_set, opt_check
   use cpdi_motion, only: vtable_set
   use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside, sim_release
-  use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE, TRANSFER_APIC
+  use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
   implicit none
   private
-
-  integer, parameter :: NIOPT = 6   !! shape, update, projection, kinematics, domain_scaling, fixed_dt
-  integer, parameter :: NROPT = 8   !! cfl, gx, gy, damping, dt, flip, lcrit, projection stabilisation
 
   type :: slot_t
     logical :: used = .false.
@@ -34,7 +35,7 @@ module cpdi_api
   type(slot_t), allocatable, target, save :: reg(:)
 
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
-            cpdi_set_options, cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
+            cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
             cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
   ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
@@ -43,10 +44,12 @@ module cpdi_api
   public :: cpdi_set_velocity_table, cpdi_water_loads
   public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
   public :: cpdi_poisson_precond, cpdi_pressure_stats
+  ! Every option by name through one table (issue 39 item 1).
+  public :: cpdi_check_options, cpdi_option_count, cpdi_option_info
+  ! The names of the diagnostics, timers and full-state rows (cpdi_slots).
+  public :: cpdi_slot_count, cpdi_slot_info
 
   ! Checkpoint and restart (issue 8): the full internal state as flat arrays.
-  integer, parameter :: NPSTATE = 27                !! rows per particle of the full state
-  integer, parameter :: NSSTATE = 5 + NDIAG + NTIMER !! scalars of the full state
   public :: cpdi_full_state_size, cpdi_get_full_state, cpdi_set_full_state
 
 contains
@@ -116,6 +119,7 @@ contains
       call move_alloc(tmp, reg)
     end if
     allocate (reg(handle)%s)
+    call sim_apply_options(reg(handle)%s)   ! the option table's defaults (cpdi_options)
     reg(handle)%used = .true.
     call finish(st, ierr, msg)
   end subroutine cpdi_new
@@ -239,7 +243,7 @@ contains
         s%t = 0.0_wp
         s%steps = 0
         s%diag = 0.0_wp
-        s%diag(10) = sum(mass)
+        s%diag(DIAG_MASS) = sum(mass)
         s%timers = 0.0_wp
         s%smax = -1.0_wp
         if (allocated(s%body)) deallocate (s%body)
@@ -327,64 +331,6 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_set_state
 
-  subroutine cpdi_set_options(handle, iopt, ropt, ierr, msg)
-    !! iopt = [shape (0 mpm, 1 gimp, 2 cpdi), update (0 usl, 1 musl), projection,
-    !!         kinematics (0 log, 1 small), domain_scaling (0/1), fixed_dt (0/1)]
-    !! ropt = [cfl, gravity_x, gravity_y, damping, dt, flip, lcrit, projection stabilisation beta]
-    integer(c_int), intent(in) :: handle
-    integer(c_int), intent(in) :: iopt(NIOPT)
-    real(c_double), intent(in) :: ropt(NROPT)
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    type(sim_t), pointer :: s
-    call lookup(handle, s, st)
-    if (st%ok()) then
-      if (.not. finite_all(ropt)) then
-        call st%set(CPDI_ERR_INPUT, 'solver options contain NaN or Inf; give finite values')
-      else if (iopt(1) < SHAPE_MPM .or. iopt(1) > SHAPE_CPDI) then
-        call st%set(CPDI_ERR_INPUT, 'shape must be 0 (mpm), 1 (gimp) or 2 (cpdi)')
-      else if (iopt(2) /= UPDATE_USL .and. iopt(2) /= UPDATE_MUSL) then
-        call st%set(CPDI_ERR_INPUT, 'update must be 0 (usl) or 1 (musl)')
-      else if (iopt(3) < 0 .or. iopt(3) > 2) then
-        call st%set(CPDI_ERR_INPUT, 'projection must be 0 (none), 1 (cell) or 2 (nodal)')
-      else if (iopt(4) /= KIN_LOG .and. iopt(4) /= KIN_SMALL) then
-        call st%set(CPDI_ERR_INPUT, 'kinematics must be 0 (log) or 1 (small)')
-      else if (any(iopt(5:6) < 0) .or. any(iopt(5:6) > 1)) then
-        call st%set(CPDI_ERR_INPUT, 'domain_scaling and fixed_dt are flags: 0 or 1')
-      else if (.not. (ropt(1) > 0.0_wp .and. ropt(1) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'cfl must lie in (0, 1]; 0.1-0.5 is typical')
-      else if (.not. (ropt(4) >= 0.0_wp .and. ropt(4) < 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'damping must lie in [0, 1)')
-      else if (iopt(6) == 1 .and. .not. (ropt(5) > 0.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'a fixed time step dt must be positive (s)')
-      else if (.not. (ropt(6) >= 0.0_wp .and. ropt(6) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'flip must lie in [0, 1]')
-      else if (.not. (ropt(7) > 0.0_wp .and. ropt(7) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'lcrit must lie in (0, 1] (fraction of the cell size)')
-      else if (.not. (ropt(8) >= 0.0_wp .and. ropt(8) <= 1.0_wp)) then
-        call st%set(CPDI_ERR_INPUT, 'projection stabilisation beta must lie in [0, 1]')
-      end if
-    end if
-    if (st%ok()) then
-      s%opt%shape = iopt(1)
-      s%opt%update = iopt(2)
-      s%opt%projection = iopt(3)
-      s%opt%kinematics = iopt(4)
-      s%opt%domain_scaling = iopt(5)
-      s%opt%fixed_dt = iopt(6)
-      s%opt%cfl = ropt(1)
-      s%opt%gravity = ropt(2:3)
-      s%opt%damping = ropt(4)
-      s%opt%dt = ropt(5)
-      s%opt%flip = ropt(6)
-      s%opt%lcrit = ropt(7)
-      s%opt%pstab = ropt(8)
-      s%smax = -1.0_wp
-    end if
-    call finish(st, ierr, msg)
-  end subroutine cpdi_set_options
-
   subroutine cpdi_set_body_force(handle, n, b, ierr, msg)
     !! External body force per unit mass b(2,n) [m/s^2], added to gravity, kept until reset.
     integer(c_int), intent(in) :: handle
@@ -426,6 +372,7 @@ contains
     nsteps = 0
     t = 0.0_wp
     call lookup(handle, s, st)
+    if (st%ok()) call opt_check(s%ov, st)
     if (st%ok()) call sim_prepare(s, st)
     if (st%ok() .and. .not. (abs(t_end) <= huge(t_end))) call st%set(CPDI_ERR_INPUT, 't_end must be finite')
     if (st%ok()) then
@@ -653,83 +600,145 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_get_timers
 
-  subroutine cpdi_set_option(handle, name, value, ierr, msg)
-    !! A solver option by name (options added after the positional iopt/ropt of
-    !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
-    !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
-    !! volume_correction (beta of the divergence target beta (fill - 1) / dt), pressure_precond
-    !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
-    !! incompressible water: 0 off, the coupled step is their acoustic one; 1 explicit, their explicit
-    !! steps subcycled inside the water's; 2 implicit, explicit with the solids' volumetric stress
-    !! implicit in the projection; 3 auto, the coupling chooses by what the solids are, cpdi_step
-    !! prepare_solids; docs/fsi_incompressible.md, docs/notes/fsi_subcycling.md).
+  subroutine cpdi_set_option(handle, name, n, values, ierr, msg)
+    !! Solver option name = values(1:n), by name: every option is a row of the table in
+    !! cpdi_options (cpdi_option_info lists them), which checks the value in one place (kind,
+    !! components, range). An enum takes its value's 0-based index, a flag 0 or 1. The rules
+    !! between options are checked by cpdi_check_options (and before every advance).
     integer(c_int), intent(in) :: handle
     character(len=*), intent(in) :: name
-    real(c_double), intent(in) :: value
+    integer(c_int), intent(in) :: n
+    real(c_double), intent(in) :: values(n)
     integer(c_int), intent(out) :: ierr
     character(len=MSG_LEN), intent(out) :: msg
     type(status_t) :: st
     type(sim_t), pointer :: s
     call lookup(handle, s, st)
-    if (st%ok() .and. .not. (abs(value) <= huge(value))) call st%set(CPDI_ERR_INPUT, trim(name)//' must be finite')
-    if (.not. st%ok()) then
-      call finish(st, ierr, msg)
-      return
+    if (st%ok()) then
+      call opt_set(s%ov, name, values, st)
+      if (st%ok()) then
+        call sim_apply_options(s)
+        s%smax = -1.0_wp
+      end if
     end if
-    select case (trim(name))
-    case ('fluid')
-      call set_flag(s%opt%fluid, 'fluid must be 0 (weakly_compressible) or 1 (incompressible)')
-    case ('transfer')
-      call set_flag(s%inc%transfer, 'transfer must be 0 (flip) or 1 (apic)')
-    case ('cg_tolerance')
-      call set_real(s%inc%tol, value > 0.0_wp .and. value < 1.0_wp, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
-    case ('cg_max_iterations')
-      if (.not. (value >= 0.0_wp .and. value < 1.0e9_wp) .or. value /= aint(value)) then
-        call st%set(CPDI_ERR_INPUT, 'cg_max_iterations must be a whole number >= 0 (0: automatic)')
-      else
-        s%inc%maxit = nint(value, ik)
-      end if
-    case ('volume_correction')
-      call set_real(s%inc%beta, value >= 0.0_wp .and. value <= 2.0_wp, &
-                    'volume_correction must lie in [0, 2]; 0.1-1 is typical')
-    case ('pressure_precond')
-      call set_flag(s%inc%mc%precond, 'pressure_precond must be 0 (mic0) or 1 (multigrid)')
-    case ('solid_substeps')
-      if (value /= 0.0_wp .and. value /= 1.0_wp .and. value /= 2.0_wp .and. value /= 3.0_wp) then
-        call st%set(CPDI_ERR_INPUT, 'solid_substeps must be 0 (off), 1 (explicit), 2 (implicit) or 3 (auto)')
-      else
-        s%inc%substeps = nint(value, ik)
-      end if
-    case default
-      call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, pressure_precond or solid_substeps')
-    end select
-    if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)
-  contains
-    subroutine set_flag(target, text)
-      !! target = value if it is 0 or 1, else the error text.
-      integer(ik), intent(inout) :: target
-      character(len=*), intent(in) :: text
-      if (value /= 0.0_wp .and. value /= 1.0_wp) then
-        call st%set(CPDI_ERR_INPUT, text)
-      else
-        target = nint(value, ik)
-      end if
-    end subroutine set_flag
-
-    subroutine set_real(target, ok, text)
-      !! target = value if ok, else the error text.
-      real(wp), intent(inout) :: target
-      logical, intent(in) :: ok
-      character(len=*), intent(in) :: text
-      if (ok) then
-        target = value
-      else
-        call st%set(CPDI_ERR_INPUT, text)
-      end if
-    end subroutine set_real
   end subroutine cpdi_set_option
+
+  subroutine cpdi_slot_count(kind, n)
+    !! Named slots of kind 1 diagnostics, 2 timers, 3 fields of the full state's particle rows,
+    !! 4 the full state's leading scalars (then come the diagnostics and the timers); 0 otherwise.
+    integer(c_int), intent(in) :: kind
+    integer(c_int), intent(out) :: n
+    select case (kind)
+    case (1)
+      n = int(NDIAG, c_int)
+    case (2)
+      n = int(NTIMER, c_int)
+    case (3)
+      n = int(NROWFIELD, c_int)
+    case (4)
+      n = int(NSCALAR, c_int)
+    case default
+      n = 0
+    end select
+  end subroutine cpdi_slot_count
+
+  subroutine cpdi_slot_info(kind, i, name, width, ierr, msg)
+    !! Slot i (1-based) of kind (cpdi_slot_count): its name (cpdi_slots) and width (the rows a
+    !! particle field of the full state spans; 1 otherwise).
+    integer(c_int), intent(in) :: kind, i
+    character(len=SLOT_NAME_LEN), intent(out) :: name
+    integer(c_int), intent(out) :: width
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    integer(c_int) :: n
+    name = ''
+    width = 1
+    call cpdi_slot_count(kind, n)
+    if (i < 1 .or. i > n) then
+      call st%set(CPDI_ERR_INPUT, 'slot out of range; use kind 1-4 and 1 .. cpdi_slot_count(kind)')
+    else
+      select case (kind)
+      case (1)
+        name = DIAG_NAMES(i)
+      case (2)
+        name = TIMER_NAMES(i)
+      case (3)
+        name = ROW_NAMES(i)
+        width = int(merge(NPSTATE + 1, ROW_FIRST(min(i + 1, n)), i == n) - ROW_FIRST(i), c_int)
+      case (4)
+        name = SCALAR_NAMES(i)
+      end select
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_slot_info
+
+  subroutine cpdi_check_options(handle, ierr, msg)
+    !! The rules between a simulation's options (a fixed dt is positive; apic needs the
+    !! incompressible water): the case loader runs it on a scratch simulation.
+    integer(c_int), intent(in) :: handle
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    type(sim_t), pointer :: s
+    call lookup(handle, s, st)
+    if (st%ok()) call opt_check(s%ov, st)
+    call finish(st, ierr, msg)
+  end subroutine cpdi_check_options
+
+  subroutine cpdi_option_count(n)
+    !! Rows of the option table.
+    integer(c_int), intent(out) :: n
+    n = int(NOPT, c_int)
+  end subroutine cpdi_option_count
+
+  subroutine cpdi_option_info(i, name, kind, ncomp, default, lo, hi, lo_open, hi_open, in_case, choices, unit, &
+                              help, ierr, msg)
+    !! Row i (1-based) of the option table (cpdi_options): name; kind 1 real, 2 whole number,
+    !! 3 flag, 4 enum; components; default (an enum: its index); range lo..hi (+-huge:
+    !! unbounded) with open ends flagged 1; in_case 0 not a case key, 1 a [solver] key with the
+    !! default, 2 a [solver] key without one; an enum's '|'-separated value names; unit; help.
+    integer(c_int), intent(in) :: i
+    character(len=OPT_NAME_LEN), intent(out) :: name
+    integer(c_int), intent(out) :: kind, ncomp, lo_open, hi_open, in_case
+    real(c_double), intent(out) :: default, lo, hi
+    character(len=OPT_CHOICE_LEN), intent(out) :: choices
+    character(len=OPT_UNIT_LEN), intent(out) :: unit
+    character(len=OPT_HELP_LEN), intent(out) :: help
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    type(status_t) :: st
+    name = ''
+    kind = 0
+    ncomp = 0
+    lo_open = 0
+    hi_open = 0
+    in_case = 0
+    default = 0.0_wp
+    lo = 0.0_wp
+    hi = 0.0_wp
+    choices = ''
+    unit = ''
+    help = ''
+    if (i < 1 .or. i > NOPT) then
+      call st%set(CPDI_ERR_INPUT, 'option row out of range; use 1 .. cpdi_option_count')
+    else
+      name = OPTIONS(i)%name
+      kind = int(OPTIONS(i)%kind, c_int)
+      ncomp = int(OPTIONS(i)%ncomp, c_int)
+      default = OPTIONS(i)%default
+      lo = OPTIONS(i)%lo
+      hi = OPTIONS(i)%hi
+      lo_open = merge(1_c_int, 0_c_int, OPTIONS(i)%lo_open)
+      hi_open = merge(1_c_int, 0_c_int, OPTIONS(i)%hi_open)
+      in_case = int(OPTIONS(i)%in_case, c_int)
+      choices = OPTIONS(i)%choices
+      unit = OPTIONS(i)%unit
+      help = OPTIONS(i)%help
+    end if
+    call finish(st, ierr, msg)
+  end subroutine cpdi_option_info
 
   subroutine cpdi_face_velocity(handle, nx, ny, u, v, ierr, msg)
     !! Face velocities after the last step of an incompressible run, (nx, ny) = cells:
@@ -1124,24 +1133,24 @@ contains
     call lookup(handle, s, st)
     if (st%ok()) call check_full_state_dims(s, nprow, n, nscal, st)
     if (st%ok()) then
-      pstate(1:2, :) = s%p%x
-      pstate(3:4, :) = s%p%v
-      pstate(5:8, :) = s%p%F
-      pstate(9:12, :) = s%p%L
-      pstate(13:16, :) = s%p%sig
-      pstate(17:20, :) = s%p%r
-      pstate(21:22, :) = s%p%bf
-      pstate(23, :) = s%p%vol
-      pstate(24, :) = s%p%psi
-      pstate(25, :) = s%p%jbar
-      pstate(26:27, :) = s%p%aw
-      sstate(1) = s%t
-      sstate(2) = real(s%steps, wp)
-      sstate(3) = s%smax
-      sstate(4) = s%visc_dt
-      sstate(5) = s%dt_last
-      sstate(6:5 + NDIAG) = s%diag
-      sstate(6 + NDIAG:NSSTATE) = s%timers
+      pstate(ROW_X:ROW_X + 1, :) = s%p%x
+      pstate(ROW_V:ROW_V + 1, :) = s%p%v
+      pstate(ROW_F:ROW_F + 3, :) = s%p%F
+      pstate(ROW_L:ROW_L + 3, :) = s%p%L
+      pstate(ROW_SIG:ROW_SIG + 3, :) = s%p%sig
+      pstate(ROW_R:ROW_R + 3, :) = s%p%r
+      pstate(ROW_BF:ROW_BF + 1, :) = s%p%bf
+      pstate(ROW_VOL, :) = s%p%vol
+      pstate(ROW_PSI, :) = s%p%psi
+      pstate(ROW_JBAR, :) = s%p%jbar
+      pstate(ROW_AW:ROW_AW + 1, :) = s%p%aw
+      sstate(SCAL_T) = s%t
+      sstate(SCAL_STEPS) = real(s%steps, wp)
+      sstate(SCAL_SMAX) = s%smax
+      sstate(SCAL_VISC_DT) = s%visc_dt
+      sstate(SCAL_DT_LAST) = s%dt_last
+      sstate(NSCALAR + 1:NSCALAR + NDIAG) = s%diag
+      sstate(NSCALAR + NDIAG + 1:NSSTATE) = s%timers
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_get_full_state
@@ -1167,16 +1176,18 @@ contains
       if (.not. (finite_all(reshape(pstate, [nprow*n])) .and. finite_all(sstate))) then
         call st%set(CPDI_ERR_INPUT, 'full state contains NaN or Inf; it is damaged, use another checkpoint '// &
                     'or rerun from t = 0')
-      else if (.not. (sstate(1) >= 0.0_wp .and. sstate(2) >= 0.0_wp .and. sstate(2) == aint(sstate(2)) &
-                      .and. sstate(2) < 2.0_wp**53 .and. sstate(4) > 0.0_wp .and. sstate(5) >= 0.0_wp)) then
+      else if (.not. (sstate(SCAL_T) >= 0.0_wp .and. sstate(SCAL_STEPS) >= 0.0_wp &
+                      .and. sstate(SCAL_STEPS) == aint(sstate(SCAL_STEPS)) .and. sstate(SCAL_STEPS) < 2.0_wp**53 &
+                      .and. sstate(SCAL_VISC_DT) > 0.0_wp .and. sstate(SCAL_DT_LAST) >= 0.0_wp)) then
         call st%set(CPDI_ERR_INPUT, 'full state has a negative time or time step, a step count that is not '// &
                     'a whole number, or a viscous limit <= 0; it is damaged, use another checkpoint')
       end if
     end if
     if (st%ok()) then
       do ip = 1, n
-        if (.not. (det2(pstate(5:8, ip)) > 0.0_wp .and. det2(pstate(17:20, ip)) > 0.0_wp .and. &
-                   pstate(23, ip) > 0.0_wp .and. pstate(25, ip) > 0.0_wp)) then
+        if (.not. (det2(pstate(ROW_F:ROW_F + 3, ip)) > 0.0_wp .and. det2(pstate(ROW_R:ROW_R + 3, ip)) > 0.0_wp &
+                   .and. &
+                   pstate(ROW_VOL, ip) > 0.0_wp .and. pstate(ROW_JBAR, ip) > 0.0_wp)) then
           write (buf, '(a,i0,a)') 'full state of particle ', ip, ' has det F, domain area, volume or J <= 0; '// &
             'it is damaged, use another checkpoint or rerun from t = 0'
           call st%set(CPDI_ERR_INPUT, trim(buf))
@@ -1185,24 +1196,24 @@ contains
       end do
     end if
     if (st%ok()) then
-      s%p%x = pstate(1:2, :)
-      s%p%v = pstate(3:4, :)
-      s%p%F = pstate(5:8, :)
-      s%p%L = pstate(9:12, :)
-      s%p%sig = pstate(13:16, :)
-      s%p%r = pstate(17:20, :)
-      s%p%bf = pstate(21:22, :)
-      s%p%vol = pstate(23, :)
-      s%p%psi = pstate(24, :)
-      s%p%jbar = pstate(25, :)
-      s%p%aw = pstate(26:27, :)
-      s%t = sstate(1)
-      s%steps = int(sstate(2), kind(s%steps))
-      s%smax = sstate(3)
-      s%visc_dt = sstate(4)
-      s%dt_last = sstate(5)
-      s%diag = sstate(6:5 + NDIAG)
-      s%timers = sstate(6 + NDIAG:NSSTATE)
+      s%p%x = pstate(ROW_X:ROW_X + 1, :)
+      s%p%v = pstate(ROW_V:ROW_V + 1, :)
+      s%p%F = pstate(ROW_F:ROW_F + 3, :)
+      s%p%L = pstate(ROW_L:ROW_L + 3, :)
+      s%p%sig = pstate(ROW_SIG:ROW_SIG + 3, :)
+      s%p%r = pstate(ROW_R:ROW_R + 3, :)
+      s%p%bf = pstate(ROW_BF:ROW_BF + 1, :)
+      s%p%vol = pstate(ROW_VOL, :)
+      s%p%psi = pstate(ROW_PSI, :)
+      s%p%jbar = pstate(ROW_JBAR, :)
+      s%p%aw = pstate(ROW_AW:ROW_AW + 1, :)
+      s%t = sstate(SCAL_T)
+      s%steps = int(sstate(SCAL_STEPS), kind(s%steps))
+      s%smax = sstate(SCAL_SMAX)
+      s%visc_dt = sstate(SCAL_VISC_DT)
+      s%dt_last = sstate(SCAL_DT_LAST)
+      s%diag = sstate(NSCALAR + 1:NSCALAR + NDIAG)
+      s%timers = sstate(NSCALAR + NDIAG + 1:NSSTATE)
     end if
     call finish(st, ierr, msg)
   end subroutine cpdi_set_full_state

@@ -5,6 +5,7 @@ module cpdi_constitutive
   !! and the projected mean stress.
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_MAX_SIGNAL, DIAG_STRAIN, DIAG_VISCOUS
   use cpdi_status, only: status_t, CPDI_ERR_NAN, CPDI_ERR_JACOBIAN
   use cpdi_shape, only: SHAPE_CPDI
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, block_next
@@ -200,11 +201,11 @@ contains
       exit
     end do
     if (st%ok()) then
-      s%diag(5) = sum(s%red(1, :))
-      s%diag(14) = s%diag(14) + sum(s%red(2, :))*s%dt_last
+      s%diag(DIAG_STRAIN) = sum(s%red(1, :))
+      s%diag(DIAG_VISCOUS) = s%diag(DIAG_VISCOUS) + sum(s%red(2, :))*s%dt_last
       s%smax = maxval(s%cext(1, :))
       s%visc_dt = minval(s%cext(2, :))
-      s%diag(11) = s%smax
+      s%diag(DIAG_MAX_SIGNAL) = s%smax
     end if
     !$omp end single
   end subroutine stress_update

@@ -220,7 +220,7 @@ contains
             if (a == 2) mc%ai(c) = -af(a)
             if (a == 4) mc%aj(c) = -af(a)
           case (CELL_AIR)
-            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc%fill(c), mc%fill(nb(a)))
+            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc, mc%fill(c), mc%fill(nb(a)))
             if (af(a) > 0.0_wp) air = .true.
           end select
         end do

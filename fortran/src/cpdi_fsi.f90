@@ -17,6 +17,8 @@ module cpdi_fsi
   !! Serial, and nothing is allocated per step. Water particles never touch the nodes.
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_GRAVITY_WORK, DIAG_KINETIC, DIAG_MOMENTUM_X, DIAG_MOMENTUM_Y, DIAG_STRAIN, &
+                        DIAG_WALL_CLAMPS
   use cpdi_status, only: status_t, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, CPDI_ERR_NAN, CPDI_ERR_JACOBIAN
   use cpdi_grid, only: grid_apply_walls, hold_on_walls, grid_box
   use cpdi_shape, only: shape_alloc, shape_compute, shape_count, shape_slot, SHAPE_FAIL_INVERTED, SHAPE_CPDI
@@ -103,9 +105,9 @@ contains
       call rb_move(s%inc%rb, s%p, s%opt%gravity, dt, ke, mom, wg, vb)
       call loads_free(s%ld, s%p, s%inc%rb)
       s%inc%fsolid = s%inc%fsolid + sum(s%inc%rb%force(1:2, :), dim=2)
-      s%diag(4) = s%diag(4) + ke
-      s%diag(6:7) = s%diag(6:7) + mom
-      s%diag(8) = s%diag(8) + wg
+      s%diag(DIAG_KINETIC) = s%diag(DIAG_KINETIC) + ke
+      s%diag(DIAG_MOMENTUM_X:DIAG_MOMENTUM_Y) = s%diag(DIAG_MOMENTUM_X:DIAG_MOMENTUM_Y) + mom
+      s%diag(DIAG_GRAVITY_WORK) = s%diag(DIAG_GRAVITY_WORK) + wg
       s%smax = max(s%smax, sqrt(2.0_wp)*vb + sqrt(norm2(s%opt%gravity)*s%g%h))
     end if
     s%dt_last = dt
@@ -135,9 +137,9 @@ contains
         wg = wg + p%m(ip)*dot_product(s%opt%gravity, p%x(:, ip) - s%xw(:, k))
       end do
     end associate
-    s%diag(4) = s%diag(4) + ke
-    s%diag(6:7) = s%diag(6:7) + mom
-    s%diag(8) = s%diag(8) + wg
+    s%diag(DIAG_KINETIC) = s%diag(DIAG_KINETIC) + ke
+    s%diag(DIAG_MOMENTUM_X:DIAG_MOMENTUM_Y) = s%diag(DIAG_MOMENTUM_X:DIAG_MOMENTUM_Y) + mom
+    s%diag(DIAG_GRAVITY_WORK) = s%diag(DIAG_GRAVITY_WORK) + wg
     call solid_stress(s, cs, st)
     if (.not. st%ok()) return
     s%smax = max(s%smax, cs)
@@ -338,11 +340,11 @@ contains
       end do
     end associate
     s%inc%fsolid = fs
-    s%diag(4) = s%diag(4) + ke
-    s%diag(6) = s%diag(6) + mom(1)
-    s%diag(7) = s%diag(7) + mom(2)
-    s%diag(8) = s%diag(8) + wg
-    s%diag(12) = s%diag(12) + real(nclamp, wp)
+    s%diag(DIAG_KINETIC) = s%diag(DIAG_KINETIC) + ke
+    s%diag(DIAG_MOMENTUM_X) = s%diag(DIAG_MOMENTUM_X) + mom(1)
+    s%diag(DIAG_MOMENTUM_Y) = s%diag(DIAG_MOMENTUM_Y) + mom(2)
+    s%diag(DIAG_GRAVITY_WORK) = s%diag(DIAG_GRAVITY_WORK) + wg
+    s%diag(DIAG_WALL_CLAMPS) = s%diag(DIAG_WALL_CLAMPS) + real(nclamp, wp)
   end subroutine solid_g2p
 
   subroutine solid_stress(s, cs, st)
@@ -386,7 +388,7 @@ contains
         cs = max(cs, c)
       end do
     end associate
-    s%diag(5) = se
+    s%diag(DIAG_STRAIN) = se
     ! the substeps' signal speed, from this state (a restart from it steps alike)
     if (associated(s%sub)) s%sub%smax = ca
   end subroutine solid_stress

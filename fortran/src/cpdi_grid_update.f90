@@ -4,6 +4,7 @@ module cpdi_grid_update
   !! (with Cundall damping), rigid nodes, walls and Bardenhagen contact, field by field.
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_FRICTION_WORK
   use cpdi_grid, only: grid_t, grid_apply_walls
   use cpdi_contact, only: contact_correct
   use cpdi_sim, only: sim_t
@@ -73,7 +74,7 @@ contains
         call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
       end do
       if (g%nf > 1) then
-        call contact_correct(g, s%kw, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(13))
+        call contact_correct(g, s%kw, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(DIAG_FRICTION_WORK))
         do f = 1, g%nf
           call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
         end do

@@ -91,7 +91,7 @@ contains
           if (mc%cell(nb2) == CELL_FLUID) then
             pf = 1.5_wp*mc%p(nb) - 0.5_wp*mc%p(nb2)
           else if (mc%cell(nb2) == CELL_AIR) then   ! the ghost-fluid value across the surface
-            pf = 1.5_wp*mc%p(nb) - 0.5_wp*mc%p(nb)*(1.0_wp - 1.0_wp/surface_theta(mc%fill(nb), mc%fill(nb2)))
+            pf = 1.5_wp*mc%p(nb) - 0.5_wp*mc%p(nb)*(1.0_wp - 1.0_wp/surface_theta(mc, mc%fill(nb), mc%fill(nb2)))
           else
             pf = mc%p(nb) - rho*0.5_wp*mc%h*dot_product(gravity, e)   ! half a cell towards the body (-e)
           end if

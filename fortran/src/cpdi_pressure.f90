@@ -36,6 +36,7 @@ module cpdi_pressure
   !!   pressure, the level an open tank filled to the same height has at its surface.
   use cpdi_kinds, only: wp, ik
   use cpdi_status, only: status_t, CPDI_ERR_ALLOC, CPDI_ERR_STATE
+  use cpdi_options, only: optset_t, opt_value
   use cpdi_multigrid, only: mg_t, mg_alloc, mg_build, mg_apply
   implicit none
   private
@@ -45,7 +46,6 @@ module cpdi_pressure
   integer(ik), parameter, public :: CELL_SOLID = 2
   integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
   integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
-  real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
   real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
@@ -83,6 +83,8 @@ module cpdi_pressure
     real(wp) :: resid = 0.0_wp               !! relative residual of the last solve
     integer(ik) :: precond = PRECOND_MIC0    !! the CG's preconditioner
     type(mg_t) :: mg                         !! the multigrid levels (PRECOND_MULTIGRID)
+    type(optset_t) :: ov                     !! the simulation's options (cpdi_sim sim_apply_options copies them):
+                                             !! the pressure stages read theirs by name, opt_value(mc%ov, 'name')
     ! Closed water regions (no air: the constant is in A's null space), found by each solve.
     integer(ik) :: nfloat = 0                !! closed regions of the last solve
     real(wp) :: defect = 0.0_wp              !! ||b's part in the null space||_2 / ||b||_2 of the last solve
@@ -197,16 +199,17 @@ contains
     end do
   end subroutine mac_walls
 
-  pure real(wp) function surface_theta(fw, fa)
+  pure real(wp) function surface_theta(mc, fw, fa)
     !! Distance, in cells, from a water cell's centre (fill fw) to the surface towards an air
     !! neighbour (fill fa): where the linear fill between the two centres is 1/2.
+    type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: fw, fa
     if (fw <= 0.5_wp) then
-      surface_theta = THETA_MIN
+      surface_theta = opt_value(mc%ov, 'theta_min')
     else if (fa >= 0.5_wp) then
       surface_theta = 1.0_wp
     else
-      surface_theta = min(1.0_wp, max(THETA_MIN, (fw - 0.5_wp)/(fw - fa)))
+      surface_theta = min(1.0_wp, max(opt_value(mc%ov, 'theta_min'), (fw - 0.5_wp)/(fw - fa)))
     end if
   end function surface_theta
 
@@ -272,7 +275,7 @@ contains
             if (a == 2) mc%ai(c) = -af(a)
             if (a == 4) mc%aj(c) = -af(a)
           case (CELL_AIR)
-            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc%fill(c), mc%fill(nb(a)))
+            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc, mc%fill(c), mc%fill(nb(a)))
           end select
         end do
         div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
@@ -729,10 +732,10 @@ contains
         w = w - sa*(mc%p(cr) - mc%p(cl))
         val = FACE_WATER
       else if (tl == CELL_FLUID) then
-        w = w + sa*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
+        w = w + sa*mc%p(cl)/surface_theta(mc, mc%fill(cl), mc%fill(cr))
         val = FACE_WATER
       else if (tr == CELL_FLUID) then
-        w = w - sa*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
+        w = w - sa*mc%p(cr)/surface_theta(mc, mc%fill(cr), mc%fill(cl))
         val = FACE_WATER
       end if
     end subroutine face
@@ -836,7 +839,7 @@ contains
         do a = 1, 4
           if (mc%cell(nb(a)) == CELL_FLUID) then
             cnt = cnt + 1
-            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/surface_theta(mc%fill(nb(a)), mc%fill(c)))
+            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/surface_theta(mc, mc%fill(nb(a)), mc%fill(c)))
           end if
         end do
         mc%pe(c) = 0.0_wp

@@ -16,19 +16,15 @@ module cpdi_sim
   use cpdi_incompressible, only: incomp_t, FLUID_WEAKLY_COMPRESSIBLE
   use cpdi_motion, only: vtable_t
   use cpdi_loads, only: loads_t
+  use cpdi_slots, only: NDIAG, NTIMER
+  use cpdi_options, only: optset_t, opt_value, opt_code, opt_index
   implicit none
   private
 
   integer(ik), parameter, public :: UPDATE_USL = 0
   integer(ik), parameter, public :: UPDATE_MUSL = 1
 
-  integer(ik), parameter, public :: NDIAG = 18
-  !! diag: 1 t, 2 dt, 3 steps, 4 kinetic energy, 5 strain energy, 6-7 momentum,
-  !! 8 work of gravity, 9 work of body forces, 10 total mass, 11 max signal speed,
-  !! 12 particles clamped at walls during the last step, 13 frictional work of contact,
-  !! 14 viscous dissipation; incompressible water: 15 CG iterations and 16 relative
-  !! residual of the last pressure solve, 17 CG iterations of all steps, 18 work of gravity
-  !! on the volume correction's displacements (not in 8: the correction is no flow)
+  public :: NDIAG, NTIMER   !! diagnostics and timers: their slots are named in cpdi_slots
   integer(ik), parameter, public :: MIN_PER_THREAD = 16384
   !! particles per thread below which a step uses fewer threads: a step has about 20
   !! barriers, and a small step on 2 threads can run slower than on 1 (passive waits;
@@ -40,10 +36,6 @@ module cpdi_sim
   integer(ik), parameter, public :: PROBE_COST = 100  !! ... or further, to PROBE_COST (t_slow / t_fast - 1)
   !! steps, so that a probe of a much slower team costs at most about 1 % of the run: a
   !! 1-thread probe beside a 16-thread team costs some 15 of its steps, 12 % of 128 steps
-  integer(ik), parameter, public :: NTIMER = 8
-  !! timers [s]: 1 shape functions (and strips), 2 P2G, 3 grid, 4 G2P (and MUSL remap),
-  !! 5 F and domains, 6 stress, 7 projection (operator, strain increment, mean stress),
-  !! 8 pressure solve (incompressible water)
 
   type, public :: options_t
     integer(ik) :: shape = SHAPE_CPDI        !! SHAPE_MPM, SHAPE_GIMP or SHAPE_CPDI
@@ -90,7 +82,8 @@ module cpdi_sim
     type(loads_t) :: ld                      !! coupled runs: the water's load on every solid particle
     type(vtable_t), allocatable :: vtab(:)   !! per material: a rigid body's velocity table (cpdi_motion)
     logical, allocatable :: pmask(:)         !! per particle: takes part in the projection
-    type(options_t) :: opt
+    type(options_t) :: opt                   !! the typed copy of ov the stages read (sim_apply_options)
+    type(optset_t) :: ov                     !! every option by name (cpdi_options; the API sets these)
     real(wp) :: t = 0.0_wp
     integer(int64) :: steps = 0
     real(wp) :: mtol = 0.0_wp                !! nodes lighter than this carry no velocity
@@ -119,9 +112,37 @@ module cpdi_sim
     real(wp), allocatable :: xw(:, :)         !! sub's positions at the start of the water step (2, n of sub)
   end type sim_t
 
-  public :: tic, toc, all_ok, all_int, tic_master, toc_master
+  public :: tic, toc, all_ok, all_int, tic_master, toc_master, sim_apply_options
 
 contains
+
+  subroutine sim_apply_options(s)
+    !! Copy the options set by name (s%ov, cpdi_options) into the typed fields the stages read.
+    !! Only the options older than the table are here; a new option is read where it is used,
+    !! opt_value(s%ov, 'name'), and needs no line here.
+    type(sim_t), intent(inout) :: s
+    s%opt%shape = opt_code(s%ov, 'shape')
+    s%opt%update = opt_code(s%ov, 'update')
+    s%opt%projection = opt_code(s%ov, 'projection')
+    s%opt%kinematics = opt_code(s%ov, 'kinematics')
+    s%opt%domain_scaling = opt_code(s%ov, 'domain_scaling')
+    s%opt%fixed_dt = opt_code(s%ov, 'fixed_dt')
+    s%opt%fluid = opt_code(s%ov, 'fluid')
+    s%opt%cfl = opt_value(s%ov, 'cfl')
+    s%opt%gravity = s%ov%v(:, opt_index('gravity'))
+    s%opt%damping = opt_value(s%ov, 'damping')
+    s%opt%dt = opt_value(s%ov, 'dt')
+    s%opt%flip = opt_value(s%ov, 'flip')
+    s%opt%lcrit = opt_value(s%ov, 'lcrit')
+    s%opt%pstab = opt_value(s%ov, 'projection_stabilization')
+    s%inc%transfer = opt_code(s%ov, 'transfer')
+    s%inc%tol = opt_value(s%ov, 'cg_tolerance')
+    s%inc%maxit = opt_code(s%ov, 'cg_max_iterations')
+    s%inc%beta = opt_value(s%ov, 'volume_correction')
+    s%inc%mc%precond = opt_code(s%ov, 'pressure_precond')
+    s%inc%substeps = opt_code(s%ov, 'solid_substeps')
+    s%inc%mc%ov = s%ov   ! the pressure stages (cpdi_pressure, cpdi_coupling, cpdi_loads) read options by name
+  end subroutine sim_apply_options
 
   subroutine tic(t0)
     integer(int64), intent(out) :: t0

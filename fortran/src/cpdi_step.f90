@@ -25,6 +25,8 @@ module cpdi_step
   use, intrinsic :: iso_fortran_env, only: int64
   !$ use omp_lib, only: omp_get_max_threads, omp_set_num_threads
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_DT, DIAG_MASS, DIAG_MAX_SIGNAL, DIAG_STEPS, DIAG_T, TIMER_DEFORMATION, &
+                        TIMER_G2P, TIMER_GRID, TIMER_P2G, TIMER_PROJECTION, TIMER_SHAPE, TIMER_STRESS
   use cpdi_status, only: status_t, CPDI_ERR_INPUT, CPDI_ERR_STATE, CPDI_ERR_OUTSIDE, CPDI_ERR_DOMAIN, &
                          CPDI_ERR_CFL
   use cpdi_grid, only: grid_fields, grid_init
@@ -117,7 +119,7 @@ contains
       if (ip /= 0 .or. s%min_per_thread < 1) s%min_per_thread = MIN_PER_THREAD
     end if
     s%mtol = 1.0e-12_wp*minval(s%p%m)
-    s%diag(10) = sum(s%p%m)
+    s%diag(DIAG_MASS) = sum(s%p%m)
     s%kprev = [1_ik, s%g%nnodes]   ! the whole grid may hold values: the next step clears it all
     if (s%smax < 0.0_wp) then   ! stress and signal speed of the current state
       if (s%opt%projection /= PROJ_NONE) then   ! its operator needs every support in the grid
@@ -195,7 +197,7 @@ contains
       call incomp_prepare(s%inc, s%g, s%p, s%mats, s%opt%shape, s%opt%damping, st)
     end if
     if (.not. st%ok()) return
-    s%diag(10) = sum(s%p%m)
+    s%diag(DIAG_MASS) = sum(s%p%m)
     if (s%smax < 0.0_wp) s%smax = sqrt(2.0_wp)*maxval(abs(s%p%v)) + sqrt(norm2(s%opt%gravity)*s%g%h)
     s%visc_dt = huge(1.0_wp)
     if (s%inc%visc > 0.0_wp) s%visc_dt = 0.25_wp*s%inc%rho*s%g%h**2/s%inc%visc
@@ -490,7 +492,7 @@ contains
         if (st%ok()) call fsi_finish(s, dt, st)
       end if
       if (.not. st%ok()) return
-      s%diag(11) = s%smax
+      s%diag(DIAG_MAX_SIGNAL) = s%smax
       s%dt_last = dt
       call advance_clock(s, dt)
       return
@@ -540,38 +542,38 @@ contains
     !$omp single
     call node_range(s)
     !$omp end single
-    call toc_master(s, 1, t0)
+    call toc_master(s, TIMER_SHAPE, t0)
     if (proj) then   ! the operator of this step's configuration, for both projections
       call projection_setup(s%proj, s%opt%projection, s%opt%shape, s%g, s%p, s%pmask, st, s%sp)
-      call toc_master(s, 7, t0)
+      call toc_master(s, TIMER_PROJECTION, t0)
       if (.not. all_ok(st)) return
     end if
 
     call p2g(s)
-    call toc_master(s, 2, t0)
+    call toc_master(s, TIMER_P2G, t0)
     call grid_update(s, dt)
-    call toc_master(s, 3, t0)
+    call toc_master(s, TIMER_GRID, t0)
     call g2p(s, dt)
-    call toc_master(s, 4, t0)
+    call toc_master(s, TIMER_G2P, t0)
     call deformation_update(s, dt, st)
-    call toc_master(s, 5, t0)
+    call toc_master(s, TIMER_DEFORMATION, t0)
     if (.not. all_ok(st)) return
     if (proj) then
       call projection_apply(s%proj, s%opt%shape, s%g, s%p, s%pmask, s%p%work(1, :), st, s%sp)
-      call toc_master(s, 7, t0)
+      call toc_master(s, TIMER_PROJECTION, t0)
       if (.not. all_ok(st)) return
       call projected_deformation(s)
-      call toc_master(s, 5, t0)
+      call toc_master(s, TIMER_DEFORMATION, t0)
     end if
     !$omp single
     s%dt_last = dt
     !$omp end single
     call stress_update(s, st)
-    call toc_master(s, 6, t0)
+    call toc_master(s, TIMER_STRESS, t0)
     if (.not. all_ok(st)) return
     if (proj) then
       call project_mean_stress(s, st)
-      call toc_master(s, 7, t0)
+      call toc_master(s, TIMER_PROJECTION, t0)
     end if
   end subroutine step_phases
 
@@ -648,8 +650,8 @@ contains
     real(wp), intent(in) :: dt
     s%t = s%t + dt
     s%steps = s%steps + 1
-    s%diag(1) = s%t
-    s%diag(2) = dt
-    s%diag(3) = real(s%steps, wp)
+    s%diag(DIAG_T) = s%t
+    s%diag(DIAG_DT) = dt
+    s%diag(DIAG_STEPS) = real(s%steps, wp)
   end subroutine advance_clock
 end module cpdi_step

@@ -6,6 +6,8 @@ module cpdi_transfer
   !! cpdi_incompressible.)
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
+  use cpdi_slots, only: DIAG_BODY_FORCE_WORK, DIAG_GRAVITY_WORK, DIAG_KINETIC, DIAG_MOMENTUM_X, &
+                        DIAG_MOMENTUM_Y, DIAG_WALL_CLAMPS
   use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, grid_box, WALL_OPEN
   use cpdi_shape, only: shape_t
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
@@ -180,12 +182,12 @@ contains
     end do
     !$omp barrier
     !$omp single
-    s%diag(4) = sum(s%red(1, :))
-    s%diag(6) = sum(s%red(2, :))
-    s%diag(7) = sum(s%red(3, :))
-    s%diag(8) = s%diag(8) + sum(s%red(4, :))
-    s%diag(9) = s%diag(9) + sum(s%red(5, :))
-    s%diag(12) = sum(s%red(6, :))
+    s%diag(DIAG_KINETIC) = sum(s%red(1, :))
+    s%diag(DIAG_MOMENTUM_X) = sum(s%red(2, :))
+    s%diag(DIAG_MOMENTUM_Y) = sum(s%red(3, :))
+    s%diag(DIAG_GRAVITY_WORK) = s%diag(DIAG_GRAVITY_WORK) + sum(s%red(4, :))
+    s%diag(DIAG_BODY_FORCE_WORK) = s%diag(DIAG_BODY_FORCE_WORK) + sum(s%red(5, :))
+    s%diag(DIAG_WALL_CLAMPS) = sum(s%red(6, :))
     !$omp end single nowait
     ! With several fields (contact) the velocity gradient comes from the contact-corrected
     ! integrated velocity, the field that moved the particles: a MUSL remap of the

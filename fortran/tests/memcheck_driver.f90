@@ -65,16 +65,12 @@ program memcheck_driver
   call cpdi_set_particles(h, n, x(:, 1:n), v(:, 1:n), m(1:n), vol(1:n), r(:, 1:n), mat(1:n), ierr, msg)
   call expect_ok('particles')
   call cpdi_set_bodies(h, n, body(1:n), 1, 0.2_c_double, 0.9_c_double, ierr, msg); call expect_ok('bodies')
-  call cpdi_set_options(h, [2_c_int, 1_c_int, 1_c_int, 0_c_int, 1_c_int, 0_c_int], &
-                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
-                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options')
+  call options(1, 1, 0, 0.3_c_double, 0.0_c_double, 0.0_c_double, 'options')
   call cpdi_advance(h, 0.05_c_double, 200, 1, nsteps, t, ierr, msg); call expect_ok('advance')
   allocate (xo(2, n), vo(2, n), f(4, n), s(4, n), volo(n), ro(4, n))
   call cpdi_get_state(h, n, xo, vo, f, s, volo, ro, ierr, msg); call expect_ok('state')
   ! nodal projection path
-  call cpdi_set_options(h, [2_c_int, 1_c_int, 2_c_int, 0_c_int, 0_c_int, 0_c_int], &
-                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
-                         0.49999_c_double, 0.1_c_double], ierr, msg); call expect_ok('options nodal')
+  call options(2, 0, 0, 0.3_c_double, 0.0_c_double, 0.1_c_double, 'options nodal')
   call cpdi_advance(h, 0.06_c_double, 50, 1, nsteps, t, ierr, msg); call expect_ok('advance nodal')
   ! checkpoint round trip: full state out, back in, step on; a damaged state is refused
   call cpdi_full_state_size(nprow, nscal, ierr, msg); call expect_ok('full state size')
@@ -89,9 +85,7 @@ program memcheck_driver
   ! error paths must return cleanly
   call cpdi_set_grid(h, [0.0_c_double, 0.0_c_double], [40_c_int, 20_c_int], 0.0_c_double, [1, 1, 1, 0], ierr, msg)
   call expect_error('zero cell size')
-  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 1_c_int], &
-                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 1.0_c_double, 1.0_c_double, &
-                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options fixed dt')
+  call options(0, 0, 1, 0.3_c_double, 1.0_c_double, 0.0_c_double, 'options fixed dt')
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('unstable fixed dt')
   call cpdi_free(h, ierr, msg); call expect_ok('free')
   call cpdi_advance(h, 1.0_c_double, 5, 1, nsteps, t, ierr, msg); call expect_error('freed handle')
@@ -121,13 +115,11 @@ program memcheck_driver
   call cpdi_set_materials(h, 1, [2_c_int], props(:, 1:1), ierr, msg); call expect_ok('materials incompressible')
   call cpdi_set_particles(h, nw, x(:, 1:nw), v(:, 1:nw), m(1:nw), vol(1:nw), r(:, 1:nw), mat(1:nw), ierr, msg)
   call expect_ok('particles incompressible')
-  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 0_c_int], &
-                        [0.5_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
-                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options incompressible')
-  call cpdi_set_option(h, 'fluid', 1.0_c_double, ierr, msg); call expect_ok('fluid incompressible')
-  call cpdi_set_option(h, 'pressure_precond', 0.0_c_double, ierr, msg); call expect_ok('mic0 preconditioner')
+  call options(0, 0, 0, 0.5_c_double, 0.0_c_double, 0.0_c_double, 'options incompressible')
+  call cpdi_set_option(h, 'fluid', 1, [1.0_c_double], ierr, msg); call expect_ok('fluid incompressible')
+  call cpdi_set_option(h, 'pressure_precond', 1, [0.0_c_double], ierr, msg); call expect_ok('mic0 preconditioner')
   call cpdi_advance(h, 0.025_c_double, 10, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible')
-  call cpdi_set_option(h, 'pressure_precond', 1.0_c_double, ierr, msg); call expect_ok('multigrid preconditioner')
+  call cpdi_set_option(h, 'pressure_precond', 1, [1.0_c_double], ierr, msg); call expect_ok('multigrid preconditioner')
   call cpdi_advance(h, 0.05_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance incompressible, multigrid')
   allocate (fu(41, 20), fv(40, 21), cp(40, 20), cf(40, 20), ck(40, 20))
   call cpdi_face_velocity(h, 40, 20, fu, fv, ierr, msg); call expect_ok('face velocity')
@@ -153,9 +145,7 @@ program memcheck_driver
                           mat(nw + 1:n), ierr, msg); call expect_ok('particles one body')
   call cpdi_set_bodies(h, n - nw, [(1_c_int, k = nw + 1, n)], 1, 0.0_c_double, 0.9_c_double, ierr, msg)
   call expect_ok('bodies one body')
-  call cpdi_set_options(h, [2_c_int, 1_c_int, 0_c_int, 0_c_int, 0_c_int, 0_c_int], &
-                        [0.3_c_double, 0.0_c_double, -9.81_c_double, 0.0_c_double, 0.0_c_double, 1.0_c_double, &
-                         0.49999_c_double, 0.0_c_double], ierr, msg); call expect_ok('options one body')
+  call options(0, 0, 0, 0.3_c_double, 0.0_c_double, 0.0_c_double, 'options one body')
   call cpdi_advance(h, 0.01_c_double, 20, 1, nsteps, t, ierr, msg); call expect_ok('advance one body')
   call cpdi_free(h, ierr, msg); call expect_ok('free one body')
   ! a state whose signal speed is not finite (a speed that overflows), refused when it is
@@ -180,6 +170,35 @@ program memcheck_driver
   if (failures > 0) call exit(1)
 
 contains
+
+  subroutine options(projection, domain_scaling, fixed_dt, cfl, dt, pstab, what)
+    !! The options of a run by name (cpdi_options' table): cpdi shape, musl, log kinematics,
+    !! gravity -9.81 m/s^2, flip 1, lcrit 0.49999, no damping; the rest as given.
+    integer, intent(in) :: projection, domain_scaling, fixed_dt
+    real(c_double), intent(in) :: cfl, dt, pstab
+    character(len=*), intent(in) :: what
+    call set1('shape', 2.0_c_double, what)
+    call set1('update', 1.0_c_double, what)
+    call set1('projection', real(projection, c_double), what)
+    call set1('kinematics', 0.0_c_double, what)
+    call set1('domain_scaling', real(domain_scaling, c_double), what)
+    call set1('fixed_dt', real(fixed_dt, c_double), what)
+    call set1('cfl', cfl, what)
+    call cpdi_set_option(h, 'gravity', 2, [0.0_c_double, -9.81_c_double], ierr, msg); call expect_ok(what//': gravity')
+    call set1('damping', 0.0_c_double, what)
+    call set1('dt', dt, what)
+    call set1('flip', 1.0_c_double, what)
+    call set1('lcrit', 0.49999_c_double, what)
+    call set1('projection_stabilization', pstab, what)
+    call cpdi_check_options(h, ierr, msg); call expect_ok(what)
+  end subroutine options
+
+  subroutine set1(name, value, what)
+    !! One scalar option by name, expected to be accepted.
+    character(len=*), intent(in) :: name, what
+    real(c_double), intent(in) :: value
+    call cpdi_set_option(h, name, 1, [value], ierr, msg); call expect_ok(what//': '//name)
+  end subroutine set1
 
   subroutine expect_ok(what)
     character(len=*), intent(in) :: what
