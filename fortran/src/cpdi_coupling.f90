@@ -39,7 +39,7 @@ module cpdi_coupling
   real(wp), parameter :: PHI_MAX = 0.99_wp     !! cells more solid than this are the solid's inside (air)
   real(wp), parameter :: DIAG_MIN = 1.0e-6_wp  !! a water cell whose weights sum below this is decoupled (p = 0)
 
-  public :: cpl_fractions, cpl_classify, cpl_constraint, cpl_assemble, cpl_impulse
+  public :: cpl_fractions, cpl_classify, cpl_close, cpl_constraint, cpl_assemble, cpl_impulse
 
 contains
 
@@ -128,6 +128,17 @@ contains
       end do
     end do
     where (mc%cell == EXTENDED) mc%cell = CELL_FLUID
+    call cpl_close(mc, wu, wv, sfill)
+  end subroutine cpl_classify
+
+  subroutine cpl_close(mc, wu, wv, sfill)
+    !! A face between a water cell and a cell of air the solid fills half or more (sfill >= 1/2) is
+    !! closed (w_f = 1): the water there touches the solid, not air.
+    type(mac_t), intent(in) :: mc
+    real(wp), intent(inout) :: wu(:), wv(:)
+    real(wp), intent(in) :: sfill(:)
+    integer(ik) :: i, j, c, n1
+    n1 = mc%nn(1)
     do j = mc%lo(2), mc%hi(2) + 1
       do i = mc%lo(1), mc%hi(1) + 1
         c = i + (j - 1)*n1
@@ -141,7 +152,7 @@ contains
       closed = (mc%cell(cl) == CELL_FLUID .and. mc%cell(cr) == CELL_AIR .and. sfill(cr) >= 0.5_wp) .or. &
                (mc%cell(cr) == CELL_FLUID .and. mc%cell(cl) == CELL_AIR .and. sfill(cl) >= 0.5_wp)
     end function closed
-  end subroutine cpl_classify
+  end subroutine cpl_close
 
   pure logical function free(mc, cl, cr)
     !! A face between cells cl and cr is free unless one of them is a wall or rigid body.

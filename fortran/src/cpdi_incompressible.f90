@@ -30,7 +30,7 @@ module cpdi_incompressible
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
                            mac_extrapolate, mac_constrain, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
-  use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_assemble, cpl_impulse
+  use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_close, cpl_assemble, cpl_impulse
   implicit none
   private
 
@@ -39,6 +39,7 @@ module cpdi_incompressible
   integer(ik), parameter, public :: TRANSFER_FLIP = 0   !! FLIP/PIC blend (the run's flip fraction)
   integer(ik), parameter, public :: TRANSFER_APIC = 1   !! affine particle-in-cell
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
+  integer(ik), parameter :: SEPARATION_SWEEPS = 8   !! solves at most per step that let water leave a free body
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
   integer(ik), parameter, public :: SUBSTEPS_OFF = 0       !! solid_substeps = "off": the solids' acoustic step
@@ -645,9 +646,10 @@ contains
     real(wp), intent(out) :: smax
     type(status_t), intent(inout) :: st
     real(wp) :: mtol
-    logical :: converged, batty
+    logical :: converged, batty, changed
     character(len=400) :: buf
     integer(int64) :: t0
+    integer(ik) :: sweep
 
     call tic(t0)
     call weights(ic, p, steps, st)
@@ -686,6 +688,19 @@ contains
       diag(15) = diag(15) + real(ic%mc%iters, wp)
       diag(16) = ic%mc%resid
       diag(17) = diag(17) + real(ic%mc%iters, wp)
+      if (batty .and. ic%rb%n > 0) then   ! the water leaves a free body next to the void
+        do sweep = 1, SEPARATION_SWEEPS
+          if (.not. converged) exit
+          call separate_from_bodies(ic, changed)
+          if (.not. changed) exit
+          call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
+          call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
+          call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
+          diag(15) = diag(15) + real(ic%mc%iters, wp)
+          diag(16) = ic%mc%resid
+          diag(17) = diag(17) + real(ic%mc%iters, wp)
+        end do
+      end if
     end if
     if (.not. converged) then
       write (buf, '(a,i0,a,es10.3,a,i0,a,es9.2,a)') 'step ', steps + 1, ': the pressure solve did not converge '// &
@@ -722,6 +737,41 @@ contains
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
     call toc(timers, 4, t0)
   end subroutine incomp_step
+
+  subroutine separate_from_bodies(ic, changed)
+    !! The water leaves a free body where it would have to pull on it next to the void (the void
+    !! stands for air at the ambient pressure, p = 0, so water touching both can only push): a
+    !! water cell the body bounds (an entry of the low-rank term) with p < 0 and a face open to a
+    !! cell of air that the solid does not fill (the void, not the body's inside) becomes air, and
+    !! the faces between water and the body's inside it uncovers are closed. Water that touches
+    !! the body away from the void keeps to it (a submerged body drags its wake). changed: some
+    !! cell became air (the system is to be assembled and solved again).
+    type(incomp_t), intent(inout) :: ic
+    logical, intent(out) :: changed
+    integer(ik), parameter :: LEAVING = -1
+    integer(ik) :: e, c, n1, a, nb(4)
+    real(wp) :: af(4)
+    changed = .false.
+    n1 = ic%mc%nn(1)
+    associate (mc => ic%mc)
+      do e = 1, mc%nlr
+        c = mc%lrc(e)
+        if (mc%cell(c) /= CELL_FLUID .or. .not. (mc%p(c) < 0.0_wp)) cycle
+        nb = [c - 1, c + 1, c - n1, c + n1]
+        af = [1.0_wp - ic%wu(c), 1.0_wp - ic%wu(c + 1), 1.0_wp - ic%wv(c), 1.0_wp - ic%wv(c + n1)]
+        do a = 1, 4
+          if (mc%cell(nb(a)) == CELL_AIR .and. ic%sfill(nb(a)) < 0.5_wp .and. af(a) > 0.0_wp) then
+            mc%cell(c) = LEAVING
+            changed = .true.
+            exit
+          end if
+        end do
+      end do
+      where (mc%cell == LEAVING) mc%cell = CELL_AIR
+      where (mc%cell == CELL_AIR) mc%p = 0.0_wp
+    end associate
+    if (changed) call cpl_close(ic%mc, ic%wu, ic%wv, ic%sfill)
+  end subroutine separate_from_bodies
 
   subroutine solid_helmholtz(ic, dt)
     !! solid_substeps = "implicit": the solids' volumetric stress inside the projection (after

@@ -16,6 +16,8 @@ module cpdi_rigid_body
   !!    the cell's faces, exact for a rigid motion. The kinetic-energy minimisation under the
   !!    constraint adds rho J M^-1 J^T (rank 3 per body) to the pressure matrix (cpdi_pressure's
   !!    low-rank term) and -(rho / dt) J . U* to the right-hand side.
+  !!    After the solve the water leaves the body where it would pull on it next to the void
+  !!    (cpdi_incompressible separate_from_bodies: such cells become air, and the system is solved again).
   !! 4. rb_impulse: U = U* + dt M^-1 J^T p, the pressure's impulse on the body (its transpose):
   !!    a uniform pressure gives none (the sums of g telescope), a hydrostatic one rho g sum_f w_f^b h^2.
   !! 5. rb_walls: the closed walls hold the body: the corners of its particles' domains may not cross
