@@ -113,3 +113,14 @@ def test_the_scan_finds_a_retyped_number(tmp_path, monkeypatch):
     monkeypatch.setattr(paths, "SOURCE_ROOT", tmp_path)
     found = retyped("probe")
     assert len(found) == 1 and "RHO = 1000.0" in found[0]
+
+
+@pytest.mark.parametrize("case", ["water_column.toml", "dam_break.toml"])
+def test_hydrostatic_measures_hold_the_water_of_the_cases_they_measure(case):
+    """harness.problems.hydrostatic reads rho and g from hydrostatic_column.toml; the collapsing columns it
+    also measures must hold the same water, or their pressure noise would be scaled by another case's."""
+    from harness import cases
+    from harness.problems import hydrostatic as hs
+
+    c = cases.load(paths.CASES / case)
+    assert (c["materials"][0]["density"], -c["solver"]["gravity"][1]) == (hs.RHO, hs.G)

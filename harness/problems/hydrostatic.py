@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from harness import cases, paths
 from harness.solver import pressure
 
-RHO, G = 1000.0, 9.81
+# the water of the settled column (cases/hydrostatic_column.toml); the collapsing columns the measures
+# are also used on (water_column.toml, dam_break.toml) hold the same water and gravity
+_CASE = cases.load(paths.CASES / "hydrostatic_column.toml")
+RHO, G = _CASE["materials"][0]["density"], -_CASE["solver"]["gravity"][1]
 
 
 def column_errors(x: np.ndarray, X0: np.ndarray, sigma: np.ndarray, mass: np.ndarray, H: float) -> dict:
