@@ -46,6 +46,8 @@ module cpdi_pressure
   integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
   integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
   real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
+  real(wp), parameter :: LVL_MAX = 2.0_wp     !! mac_level_set: |distance| it resolves [h] (the smoothed fill's reach)
+  real(wp), parameter, public :: LVL_WATER = -1.0e-6_wp  !! mac_level_set: a cell centre below this distance is water [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
   real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
@@ -60,6 +62,9 @@ module cpdi_pressure
     real(wp) :: h = 0.0_wp                   !! cell size [m]
     integer(ik), allocatable :: cell(:)      !! CELL_AIR, CELL_FLUID or CELL_SOLID
     real(wp), allocatable :: fill(:)         !! cell fill fraction [-]
+    logical :: levelset = .false.            !! the surface from lvl (mac_level_set), not from fill
+    real(wp), allocatable :: lvl(:)          !! levelset: signed distance to the surface, in cells (< 0: water)
+    real(wp), allocatable :: lvt(:)          !! levelset: work (the smoothed fill)
     real(wp), allocatable :: um(:), vm(:)    !! face masses
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
@@ -93,6 +98,7 @@ module cpdi_pressure
   end type mac_t
 
   public :: mac_precondition
+  public :: mac_level_set, mac_theta
   public :: mac_alloc, mac_clear_system, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
             mac_extrapolate, mac_constrain, mac_ghost_pressure, mac_apply
 
@@ -106,11 +112,13 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr, n
     n = nn(1)*nn(2)
-    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
+    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%lvl, mc%lvt, &
+                                        mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
                                         mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy, mc%rgn, mc%stk, mc%rlab, mc%rcnt, &
                                         mc%rsum)
-    allocate (mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
+    allocate (mc%cell(n), mc%fill(n), mc%lvl(n), mc%lvt(n), &
+              mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
               mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), mc%rgn(n), mc%stk(n), mc%rlab(n), &
               mc%rcnt(n), mc%rsum(n), stat=ierr)
@@ -126,6 +134,8 @@ contains
     mc%h = h
     mc%cell = CELL_AIR
     mc%fill = 0.0_wp
+    mc%lvl = LVL_MAX
+    mc%lvt = 0.0_wp
     mc%um = 0.0_wp
     mc%vm = 0.0_wp
     mc%u = 0.0_wp
@@ -208,6 +218,111 @@ contains
     end if
   end function surface_theta
 
+  pure real(wp) function mac_theta(mc, cw, ca)
+    !! Distance, in cells, from water cell cw's centre to the surface towards its air neighbour ca:
+    !! from the level set where the cell of the surface is mac_level_set's (levelset), from the cell
+    !! fill (surface_theta) otherwise. A water cell whose centre the level set puts outside the
+    !! water (spray, thin sheets: water by its particle's centre alone) has the surface at THETA_MIN.
+    type(mac_t), intent(in) :: mc
+    integer(ik), intent(in) :: cw, ca
+    real(wp) :: lw, la
+    if (.not. mc%levelset) then
+      mac_theta = surface_theta(mc%fill(cw), mc%fill(ca))
+      return
+    end if
+    lw = mc%lvl(cw)
+    la = mc%lvl(ca)
+    if (lw >= LVL_WATER) then
+      mac_theta = THETA_MIN
+    else if (la < 0.0_wp) then
+      mac_theta = 1.0_wp
+    else
+      mac_theta = min(1.0_wp, max(THETA_MIN, lw/(lw - la)))
+    end if
+  end function mac_theta
+
+  subroutine mac_level_set(mc)
+    !! lvl: the water's signed distance from the cell centres, in cells (< 0 in the water), from the
+    !! cell fill. The fill (particle volume spread bilinearly over the cell centres) is smoothed once
+    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis (indices clamped to the physical
+    !! cells, as the fill's are), and each cell's smoothed fill f is turned into the distance d at
+    !! which a half-plane of water, seen through the same two filters, fills a cell to f:
+    !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
+    !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
+    !! -1 <= d <= 0). For a plane surface the distance is exact (the midpoint sums of the particles
+    !! on their lattice are the integrals), so linear interpolation of lvl between two cell centres
+    !! places a tilted plane where it is along both axes, and the ghost-fluid pressure of water at
+    !! rest under any uniform body force is hydrostatic (docs/notes/accelerated_tank.md). The fill of
+    !! the particles' staircase along a tilted surface (their tops step by one particle spacing) is
+    !! smoothed over about 4 cells: the fill alone (bilinear, 2 cells) placed the surface with the
+    !! staircase's steps, and its pressure errors along the surface moved the water. Cells out of
+    !! the physical range keep LVL_MAX (air).
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1, a
+    real(wp), parameter :: w(-1:1) = [0.25_wp, 0.5_wp, 0.25_wp]
+    real(wp) :: f
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)   ! along x into lvt
+      do i = mc%lo(1), mc%hi(1)
+        f = 0.0_wp
+        do a = -1, 1
+          f = f + w(a)*mc%fill(min(max(i + a, mc%lo(1)), mc%hi(1)) + (j - 1)*n1)
+        end do
+        mc%lvt(i + (j - 1)*n1) = f
+      end do
+    end do
+    do j = mc%lo(2), mc%hi(2)   ! along y, then the distance
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        f = 0.0_wp
+        do a = -1, 1
+          f = f + w(a)*mc%lvt(i + (min(max(j + a, mc%lo(2)), mc%hi(2)) - 1)*n1)
+        end do
+        mc%lvl(c) = fill_distance(f)
+      end do
+    end do
+  end subroutine mac_level_set
+
+  pure real(wp) function fill_distance(f) result(d)
+    !! The d in [-LVL_MAX, LVL_MAX] with F(d) = f (mac_level_set's F, decreasing from 1 to 0):
+    !! bisection to round-off.
+    real(wp), intent(in) :: f
+    real(wp) :: lo, hi, mid
+    integer :: it
+    if (f >= 1.0_wp) then
+      d = -LVL_MAX
+      return
+    else if (f <= 0.0_wp) then
+      d = LVL_MAX
+      return
+    end if
+    lo = -LVL_MAX
+    hi = LVL_MAX
+    do it = 1, 60
+      mid = 0.5_wp*(lo + hi)
+      if (0.25_wp*tent_cdf(mid - 1.0_wp) + 0.5_wp*tent_cdf(mid) + 0.25_wp*tent_cdf(mid + 1.0_wp) > f) then
+        lo = mid
+      else
+        hi = mid
+      end if
+    end do
+    d = 0.5_wp*(lo + hi)
+  end function fill_distance
+
+  pure real(wp) function tent_cdf(d)
+    !! Bilinear fill of a cell whose centre lies d cells above a flat water surface.
+    real(wp), intent(in) :: d
+    if (d >= 1.0_wp) then
+      tent_cdf = 0.0_wp
+    else if (d >= 0.0_wp) then
+      tent_cdf = 0.5_wp*(1.0_wp - d)**2
+    else if (d >= -1.0_wp) then
+      tent_cdf = 1.0_wp - 0.5_wp*(1.0_wp + d)**2
+    else
+      tent_cdf = 1.0_wp
+    end if
+  end function tent_cdf
+
   subroutine mac_clear_system(mc)
     !! Zero the pressure system (matrix, right-hand side, preconditioner) on the cells and their
     !! ghost ring, and the pressure outside the water; the assemblies fill it again.
@@ -270,7 +385,7 @@ contains
             if (a == 2) mc%ai(c) = -af(a)
             if (a == 4) mc%aj(c) = -af(a)
           case (CELL_AIR)
-            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc%fill(c), mc%fill(nb(a)))
+            mc%adiag(c) = mc%adiag(c) + af(a)/mac_theta(mc, c, nb(a))
           end select
         end do
         div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
@@ -697,10 +812,10 @@ contains
         w = w - sa*(mc%p(cr) - mc%p(cl))
         val = FACE_WATER
       else if (tl == CELL_FLUID) then
-        w = w + sa*mc%p(cl)/surface_theta(mc%fill(cl), mc%fill(cr))
+        w = w + sa*mc%p(cl)/mac_theta(mc, cl, cr)
         val = FACE_WATER
       else if (tr == CELL_FLUID) then
-        w = w - sa*mc%p(cr)/surface_theta(mc%fill(cr), mc%fill(cl))
+        w = w - sa*mc%p(cr)/mac_theta(mc, cr, cl)
         val = FACE_WATER
       end if
     end subroutine face
@@ -804,7 +919,7 @@ contains
         do a = 1, 4
           if (mc%cell(nb(a)) == CELL_FLUID) then
             cnt = cnt + 1
-            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/surface_theta(mc%fill(nb(a)), mc%fill(c)))
+            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/mac_theta(mc, nb(a), c))
           end if
         end do
         mc%pe(c) = 0.0_wp
