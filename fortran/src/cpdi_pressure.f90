@@ -46,7 +46,8 @@ module cpdi_pressure
   integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
   integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
   real(wp), parameter :: THETA_MIN = 0.1_wp   !! closest a surface may sit to a water cell centre [h]
-  real(wp), parameter :: LVL_MAX = 2.0_wp     !! mac_level_set: |distance| it resolves [h] (the smoothed fill's reach)
+  integer, parameter :: LVL_PASSES = 1        !! mac_level_set: binomial passes over the fill
+  real(wp), parameter :: LVL_MAX = 1.0_wp + LVL_PASSES   !! mac_level_set: |distance| it resolves [h] (the smoothed fill's reach)
   real(wp), parameter, public :: LVL_WATER = -1.0e-6_wp  !! mac_level_set: a cell centre below this distance is water [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
@@ -259,26 +260,40 @@ contains
     !! the physical range keep LVL_MAX (air).
     type(mac_t), intent(inout) :: mc
     integer(ik) :: i, j, c, n1, a
+    integer :: pass
     real(wp), parameter :: w(-1:1) = [0.25_wp, 0.5_wp, 0.25_wp]
     real(wp) :: f
     n1 = mc%nn(1)
-    do j = mc%lo(2), mc%hi(2)   ! along x into lvt
-      do i = mc%lo(1), mc%hi(1)
-        f = 0.0_wp
-        do a = -1, 1
-          f = f + w(a)*mc%fill(min(max(i + a, mc%lo(1)), mc%hi(1)) + (j - 1)*n1)
-        end do
-        mc%lvt(i + (j - 1)*n1) = f
-      end do
-    end do
-    do j = mc%lo(2), mc%hi(2)   ! along y, then the distance
+    do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
-        f = 0.0_wp
-        do a = -1, 1
-          f = f + w(a)*mc%lvt(i + (min(max(j + a, mc%lo(2)), mc%hi(2)) - 1)*n1)
+        mc%lvl(c) = mc%fill(c)
+      end do
+    end do
+    do pass = 1, LVL_PASSES
+      do j = mc%lo(2), mc%hi(2)   ! along x into lvt
+        do i = mc%lo(1), mc%hi(1)
+          f = 0.0_wp
+          do a = -1, 1
+            f = f + w(a)*mc%lvl(min(max(i + a, mc%lo(1)), mc%hi(1)) + (j - 1)*n1)
+          end do
+          mc%lvt(i + (j - 1)*n1) = f
         end do
-        mc%lvl(c) = fill_distance(f)
+      end do
+      do j = mc%lo(2), mc%hi(2)   ! along y back into lvl
+        do i = mc%lo(1), mc%hi(1)
+          f = 0.0_wp
+          do a = -1, 1
+            f = f + w(a)*mc%lvt(i + (min(max(j + a, mc%lo(2)), mc%hi(2)) - 1)*n1)
+          end do
+          mc%lvl(i + (j - 1)*n1) = f
+        end do
+      end do
+    end do
+    do j = mc%lo(2), mc%hi(2)   ! the smoothed fill to the distance
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        mc%lvl(c) = fill_distance(mc%lvl(c))
       end do
     end do
   end subroutine mac_level_set
@@ -300,13 +315,32 @@ contains
     hi = LVL_MAX
     do it = 1, 60
       mid = 0.5_wp*(lo + hi)
-      if (0.25_wp*tent_cdf(mid - 1.0_wp) + 0.5_wp*tent_cdf(mid) + 0.25_wp*tent_cdf(mid + 1.0_wp) > f) then
+      if (profile(mid) > f) then
         lo = mid
       else
         hi = mid
       end if
     end do
     d = 0.5_wp*(lo + hi)
+  contains
+    pure real(wp) function profile(x)
+      !! F(x) = sum_k b_k T(x + k), b the binomial weights of LVL_PASSES passes (k = -LVL_PASSES..LVL_PASSES).
+      real(wp), intent(in) :: x
+      real(wp) :: b(-LVL_PASSES:LVL_PASSES), bn(-LVL_PASSES:LVL_PASSES)
+      integer :: k, q
+      b = 0.0_wp
+      b(0) = 1.0_wp
+      do q = 1, LVL_PASSES
+        bn = 0.5_wp*b
+        bn(-LVL_PASSES + 1:) = bn(-LVL_PASSES + 1:) + 0.25_wp*b(:LVL_PASSES - 1)
+        bn(:LVL_PASSES - 1) = bn(:LVL_PASSES - 1) + 0.25_wp*b(-LVL_PASSES + 1:)
+        b = bn
+      end do
+      profile = 0.0_wp
+      do k = -LVL_PASSES, LVL_PASSES
+        profile = profile + b(k)*tent_cdf(x + real(k, wp))
+      end do
+    end function profile
   end function fill_distance
 
   pure real(wp) function tent_cdf(d)
