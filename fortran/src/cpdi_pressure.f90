@@ -245,8 +245,9 @@ contains
   subroutine mac_level_set(mc)
     !! lvl: the water's signed distance from the cell centres, in cells (< 0 in the water), from the
     !! cell fill. The fill (particle volume spread bilinearly over the cell centres) is smoothed once
-    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis (indices clamped to the physical
-    !! cells, as the fill's are), and each cell's smoothed fill f is turned into the distance d at
+    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis (beyond a closed wall the water
+    !! mirrored, as in the fill; beyond an open side the fill extrapolated linearly, within [0, 1]:
+    !! exact for a flat surface on the edge cell's lower face or on the open edge itself), and each cell's smoothed fill f is turned into the distance d at
     !! which a half-plane of water, seen through the same two filters, fills a cell to f:
     !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
     !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
@@ -275,7 +276,14 @@ contains
         do i = mc%lo(1), mc%hi(1)
           f = 0.0_wp
           do a = -1, 1
-            f = f + w(a)*mc%lvl(min(max(i + a, mc%lo(1)), mc%hi(1)) + (j - 1)*n1)
+            c = i + a + (j - 1)*n1
+            if (i + a >= mc%lo(1) .and. i + a <= mc%hi(1)) then
+              f = f + w(a)*mc%lvl(c)
+            else if (mc%cell(c) == CELL_SOLID .or. mc%lo(1) == mc%hi(1)) then   ! a wall mirrors the water
+              f = f + w(a)*mc%lvl(i + (j - 1)*n1)
+            else   ! an open side: the fill extrapolated linearly, within [0, 1]
+              f = f + w(a)*min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvl(i + (j - 1)*n1) - mc%lvl(i - a + (j - 1)*n1)))
+            end if
           end do
           mc%lvt(i + (j - 1)*n1) = f
         end do
@@ -284,7 +292,14 @@ contains
         do i = mc%lo(1), mc%hi(1)
           f = 0.0_wp
           do a = -1, 1
-            f = f + w(a)*mc%lvt(i + (min(max(j + a, mc%lo(2)), mc%hi(2)) - 1)*n1)
+            c = i + (j + a - 1)*n1
+            if (j + a >= mc%lo(2) .and. j + a <= mc%hi(2)) then
+              f = f + w(a)*mc%lvt(c)
+            else if (mc%cell(c) == CELL_SOLID .or. mc%lo(2) == mc%hi(2)) then
+              f = f + w(a)*mc%lvt(i + (j - 1)*n1)
+            else
+              f = f + w(a)*min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvt(i + (j - 1)*n1) - mc%lvt(i + (j - a - 1)*n1)))
+            end if
           end do
           mc%lvl(i + (j - 1)*n1) = f
         end do
