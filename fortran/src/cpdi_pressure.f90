@@ -9,13 +9,16 @@ module cpdi_pressure
   !! The discrete divergence (cells) and gradient (faces) are adjoint, so the Laplacian is
   !! the 5-point stencil: it has no checkerboard null mode (docs/incompressible_water.md).
   !!
-  !! * Cells hold water (CELL_FLUID: a water particle's centre lies in them), air
+  !! * Cells hold water (CELL_FLUID: a water particle's centre lies in them, or the level set or
+  !!   the fill says so: cpdi_incompressible p2g_faces), air
   !!   (CELL_AIR: p = 0) or a wall (CELL_SOLID: beyond a closed wall; the face to it carries
   !!   the wall's zero normal velocity, a Neumann condition for p).
-  !! * Free surface, ghost fluid (Gibou et al. 2002): the surface lies where the cell fill
-  !!   fraction (particle volume per cell area, smoothed bilinearly) falls through 1/2 between
-  !!   a water cell and an air cell, at theta h from the water cell's centre; the air side's
-  !!   pressure is the ghost value p_c (1 - 1/theta), so p = 0 on the surface itself.
+  !! * Free surface, ghost fluid (Gibou et al. 2002): the surface lies at theta h from a water
+  !!   cell's centre towards an air neighbour; the air side's pressure is the ghost value
+  !!   p_c (1 - 1/theta), so p = 0 on the surface itself (mac_theta). Water alone (levelset):
+  !!   where the level set of mac_level_set (a signed distance from the smoothed cell fill)
+  !!   changes sign between the two centres. With solids coupled: where the cell fill fraction
+  !!   (particle volume per cell area, spread bilinearly) falls through 1/2.
   !! * Volume correction (after Kugelstadt et al. 2019): a water cell filled beyond 1 gets
   !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again. It
   !!   is solved for on its own (cpdi_incompressible): its velocity moves the particles but is
@@ -251,14 +254,17 @@ contains
     !! which a half-plane of water, seen through the same two filters, fills a cell to f:
     !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
     !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
-    !! -1 <= d <= 0). For a plane surface the distance is exact (the midpoint sums of the particles
-    !! on their lattice are the integrals), so linear interpolation of lvl between two cell centres
-    !! places a tilted plane where it is along both axes, and the ghost-fluid pressure of water at
-    !! rest under any uniform body force is hydrostatic (docs/notes/accelerated_tank.md). The fill of
-    !! the particles' staircase along a tilted surface (their tops step by one particle spacing) is
-    !! smoothed over about 4 cells: the fill alone (bilinear, 2 cells) placed the surface with the
-    !! staircase's steps, and its pressure errors along the surface moved the water. Cells out of
-    !! the physical range keep LVL_MAX (air).
+    !! -1 <= d <= 0). For a flat surface the distance is exact (the midpoint sums of the particles
+    !! on their lattice are the filters' integrals); for a tilted plane nearly so, and linear
+    !! interpolation of lvl between two cell centres then places the plane where it is along both
+    !! axes: the ghost-fluid pressure of water at rest under gravity and a uniform body force is
+    !! hydrostatic along both (with the plane's exact distance, accelerated_tank rests to
+    !! round-off). The particles' staircase along a tilted surface (their tops step by one particle
+    !! spacing) is smoothed over about 4 cells, to a plane within about 0.02 h at slope 0.2: the
+    !! fill's 1/2 crossing (bilinear, 2 cells) followed the steps, within about 0.1 h, and its
+    !! pressure errors along the surface moved the water (docs/notes/accelerated_tank.md). More
+    !! passes (LVL_PASSES 2, 3) measured worse there. Cells out of the physical range keep LVL_MAX
+    !! (air).
     type(mac_t), intent(inout) :: mc
     integer(ik) :: i, j, c, n1, a
     integer :: pass
