@@ -43,9 +43,9 @@ def openmp_defaults(env: dict[str, str]) -> dict[str, str]:
     caller's environment.
 
     * GOMP_SPINCOUNT=10000 (unless OMP_WAIT_POLICY or GOMP_SPINCOUNT is set): a thread that
-      waits at a barrier spins for about 0.1 ms, then sleeps. libgomp's default spins 300000
-      times (milliseconds); when another process shares the cores, the spinning thread holds a
-      core the thread it waits for needs (a 2-thread run was measured 17x slower than 1 thread;
+      waits at a barrier spins briefly, then sleeps. libgomp's default spins 30 times longer;
+      when another process shares the cores, the spinning thread holds a core the thread it
+      waits for needs, and a 2-thread run can be many times slower than 1 thread (measured:
       docs/notes/threads.md). The solver also measures both team sizes and runs each step on
       the faster one (cpdi_step.team_for_step).
     * OMP_NUM_THREADS = the cores this process may use (available_cores: the affinity mask and

@@ -158,7 +158,8 @@ def parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_run)
     v = sub.add_parser("verify", help="run the verification checks and write a report")
     v.add_argument("--quick", action="store_true", help="CI resolution")
-    v.add_argument("--only", nargs="+", metavar="NAME", help="run only these checks")
+    v.add_argument("--only", nargs="+", action="extend", metavar="NAME",
+                   help="run only these checks (the flag may be repeated)")
     v.add_argument("--out", help="report directory (default reports/<UTC stamp>)")
     v.add_argument("--no-progress", action="store_true")
     v.add_argument("--regen-gold", action="store_true",

@@ -18,6 +18,10 @@ Where the items run:
 
 * outside one, pmap starts a LocalCluster for that call alone (none for one item or one core).
 
+``submit(fn, item)`` starts one task now, ahead of the maps that follow, and ``.result()`` waits
+for it: verify starts a check's longest run this way before the first check (``start_early``), so
+it runs beside the other checks instead of alone at the end.
+
 The workers are started by spawning a fresh interpreter (distributed's default), never by forking
 this process: GNU OpenMP (libgomp) cannot be used in a child forked from a process that has
 already run a parallel region (the child waits forever on the parent's thread pool), and the
@@ -117,12 +121,30 @@ class Cluster:
         except BaseException:
             self.client.cancel(futures)
             raise
+        self._count_reruns(topic, [(f"{name}[{i}]", k, i) for i, k in enumerate(keys)])
+        return out
+
+    def _count_reruns(self, topic: str, tasks: list[tuple[str, str, int]]) -> None:
+        """Record the tasks (label, key, index) of one topic that started more than once."""
         starts = self._starts(topic)
         if starts is None:
-            self.uncounted += len(items)
-            return out
-        self.reruns += [Rerun(f"{name}[{i}]", starts[k], i, self.context) for i, k in enumerate(keys) if starts[k] > 1]
-        return out
+            self.uncounted += len(tasks)
+            return
+        self.reruns += [Rerun(label, starts[k], i, self.context) for label, k, i in tasks if starts[k] > 1]
+
+    def submit(self, fn: Callable[..., Any], item: Any, priority: float = 1.0) -> Pending:
+        """fn(*item) started now, ahead of the maps that follow (a long run that would otherwise be
+        the last to finish), the highest ``priority`` (> 0: before any map's task; give the run's
+        estimated cost, so the longest starts first) first: its value comes from
+        ``Pending.result()``. Serially, it runs then."""
+        self.tasks += 1
+        name = getattr(fn, "__name__", "task")
+        if self.serial:
+            return Pending(self, name, fn, item)
+        token = uuid.uuid4().hex[:8]
+        key, topic = f"{name}-{token}-early", f"cpdi-pmap-{token}"
+        future = self.client.submit(_task, fn, item, topic, key=key, priority=max(int(priority), 1))
+        return Pending(self, name, fn, item, future, topic, key)
 
     def _starts(self, topic: str) -> Counter | None:
         """How often each task of one map started (the scheduler's log of ``topic``); None if it
@@ -131,6 +153,29 @@ class Cluster:
             return Counter(msg for _, msg in self.client.get_events(topic))
         except Exception:
             return None
+
+
+@dataclass
+class Pending:
+    """A task started by ``submit``; ``result()`` waits for its value (its error as the value, as
+    pmap gives it) and records a re-run under the cluster's context at that time."""
+
+    cluster: Cluster
+    name: str
+    fn: Callable[..., Any]
+    item: Any
+    future: Any = None  # None: serial, run by result()
+    topic: str = ""
+    key: str = ""
+
+    def result(self) -> Any:
+        c = self.cluster
+        if self.future is None:
+            return _safe(self.fn, self.item)
+        out = _outcome(self.future)
+        self.future.release()
+        c._count_reruns(self.topic, [(f"{self.name}[early]", self.key, 0)])
+        return out
 
 
 def reruns_text(reruns: list[dict[str, Any]]) -> str:
@@ -174,6 +219,14 @@ def pmap(fn: Callable[..., Any], items: Iterable[Any], workers: int | None = Non
 
     with cluster(min(workers or available_cores(), len(items)) or 1) as c:
         return c.map(fn, items)
+
+
+def submit(fn: Callable[..., Any], item: Any, priority: float = 1.0) -> Pending:
+    """fn(*item) started now on the active cluster (Cluster.submit); outside one it runs when its
+    result is asked for."""
+    if _active is not None:
+        return _active.submit(fn, item, priority)
+    return Pending(Cluster("serial", 1), getattr(fn, "__name__", "task"), fn, item)
 
 
 def active() -> Cluster | None:

@@ -143,7 +143,7 @@ def wendland_c2(q: np.ndarray) -> np.ndarray:
 def kernel_wall_sensor(x: np.ndarray, p: np.ndarray, vol: np.ndarray | None, wall_x: float, z: float,
                        length: float, support: float, npoints: int = 10) -> float:
     """Pressure a wall sensor reads as the SPH references of Lobovsky's dam break define it
-    (TrixiParticles' pressure sensors; reference/data/lobovsky_2d_numerical_README.md): the
+    (TrixiParticles' pressure sensors; reference/data/lobovsky_2d_numerical/README.md): the
     mean over `npoints` evenly spaced points of a vertical segment of `length` centred at
     height z on the wall x = wall_x (end points included), each point's value a Shepard-
     normalised Wendland C2 average, of compact support radius `support`, of the water

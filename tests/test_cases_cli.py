@@ -184,3 +184,15 @@ def test_verify_shows_per_check_progress_and_wall_times(tmp_path, monkeypatch, c
     bar_out.truncate(0)
     verify.run_checks(["alpha"], tmp_path / "report", quick=True, progress=False)
     assert bar_out.getvalue() == ""
+
+
+def test_verify_only_takes_names_after_one_flag_or_several(monkeypatch):
+    """``--only a b`` and ``--only a --only b`` both run a and b (a repeated flag used to keep only
+    its last names)."""
+    from harness import cli, verify
+
+    seen = []
+    monkeypatch.setattr(verify, "main", lambda **kw: seen.append(kw["only"]) or 0)
+    assert cli.main(["verify", "--only", "wedge_entry", "cylinder_entry"]) == 0
+    assert cli.main(["verify", "--only", "wedge_entry", "--only", "cylinder_entry"]) == 0
+    assert seen == [["wedge_entry", "cylinder_entry"]] * 2

@@ -209,3 +209,20 @@ def test_an_unknown_preconditioner_is_refused():
     with pytest.raises(CpdiError, match="pressure_precond"):
         sim.set_options(fluid="incompressible", pressure_precond="amg")
     sim.close()
+
+
+def test_make_bench_pressure_rows_compare_both_preconditioners_from_one_state():
+    """make bench's pressure rows (tools/bench.py, tools/pressure_bench.py): the dam break at H/30
+    stepped to t* = 1, then the same steps from that one state with each preconditioner. The
+    multigrid needs fewer iterations than MIC(0) and stays below the issue's 30."""
+    from tools import bench
+
+    lines: list[str] = []
+    rows = bench.pressure_solver_rows((0.01,), 3, lines.append)
+    (r,) = rows
+    assert r["H_over_h"] == 30 and r["water_cells"] > 0
+    m, g = r["mic0"], r["multigrid"]
+    assert g["iterations_max"] < bench.MG_ITERATIONS_MAX
+    assert g["iterations_mean"] < m["iterations_mean"]
+    assert m["solve_s_per_step"] > 0 and g["solve_s_per_step"] > 0
+    assert "MIC(0)" in lines[0] and "multigrid" in lines[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tomllib
@@ -43,22 +44,52 @@ def test_developer_tools_are_not_in_the_installed_package() -> None:
     assert "install_subdir('tools'" not in (REPO / "meson.build").read_text()
 
 
+# every module of the package imported, then the extension loaded as the harness loads it; prints
+# whether os.environ was the same after each, the solver's threads and the cores this process may use
+_IMPORT_ALL = """
+import importlib, json, os, pkgutil
+before = dict(os.environ)
+import harness
+for m in pkgutil.walk_packages(harness.__path__, "harness."):
+    if m.name not in ("harness.__main__", "harness._cpdi"):  # the CLI's start; the extension, loaded below
+        importlib.import_module(m.name)
+imported = dict(os.environ)
+from harness import solver
+solver.api()
+print(json.dumps([before == imported, before == dict(os.environ), solver.threads(), harness.available_cores()]))
+"""
+
+
+def _libgomp_settings(stderr: str) -> dict[str, str]:
+    """What libgomp read from the environment as it initialised (OMP_DISPLAY_ENV=VERBOSE)."""
+    return dict(re.findall(r"^\s*(OMP_NUM_THREADS|GOMP_SPINCOUNT) = '([^']*)'", stderr, re.M))
+
+
 def test_importing_the_harness_and_loading_the_solver_leave_the_environment_unchanged() -> None:
-    """libgomp reads its settings as the extension loads: harness.solver sets its defaults for that
-    import only. The solver still runs on the cores this process may use."""
-    code = ("import os, json; before = dict(os.environ); import harness, harness.cli, harness.runner; "
-            "from harness import solver; solver.api(); "
-            "print(json.dumps([before == dict(os.environ), solver.threads(), harness.available_cores()]))")
+    """No module of the package changes an environment variable as it is imported. libgomp reads its
+    settings once, as the extension loads: harness.solver puts its defaults in the environment for that
+    import only, and libgomp's own report (OMP_DISPLAY_ENV) shows it read them. A user's setting wins."""
     env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
-    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, check=True)
-    unchanged, threads, cores = json.loads(out.stdout.strip().splitlines()[-1])
-    assert unchanged is True
+    env["OMP_DISPLAY_ENV"] = "VERBOSE"
+    out = subprocess.run([sys.executable, "-c", _IMPORT_ALL], cwd=REPO, env=env, capture_output=True, text=True,
+                         check=True)
+    unchanged_by_imports, unchanged, threads, cores = json.loads(out.stdout.strip().splitlines()[-1])
+    assert unchanged_by_imports is True and unchanged is True
     assert threads == cores
-    # a user's setting wins
-    env["OMP_NUM_THREADS"] = "1"
-    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, check=True)
-    unchanged, threads, _ = json.loads(out.stdout.strip().splitlines()[-1])
-    assert unchanged is True and threads == 1
+    assert _libgomp_settings(out.stderr) == {"OMP_NUM_THREADS": str(cores), "GOMP_SPINCOUNT": "10000"}, out.stderr
+    # a user's settings win, and are left as they were
+    env.update(OMP_NUM_THREADS="1", GOMP_SPINCOUNT="20000")
+    out = subprocess.run([sys.executable, "-c", _IMPORT_ALL], cwd=REPO, env=env, capture_output=True, text=True,
+                         check=True)
+    unchanged_by_imports, unchanged, threads, _ = json.loads(out.stdout.strip().splitlines()[-1])
+    assert unchanged_by_imports is True and unchanged is True and threads == 1
+    assert _libgomp_settings(out.stderr) == {"OMP_NUM_THREADS": "1", "GOMP_SPINCOUNT": "20000"}, out.stderr
+    # OMP_WAIT_POLICY set: the spin count is libgomp's for that policy, not the harness's default
+    del env["GOMP_SPINCOUNT"]
+    env["OMP_WAIT_POLICY"] = "PASSIVE"
+    out = subprocess.run([sys.executable, "-c", _IMPORT_ALL], cwd=REPO, env=env, capture_output=True, text=True,
+                         check=True)
+    assert _libgomp_settings(out.stderr)["GOMP_SPINCOUNT"] != "10000", out.stderr
 
 
 def test_developer_tools_run_from_the_checkout() -> None:

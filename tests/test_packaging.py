@@ -74,5 +74,5 @@ def test_pip_install_then_cpdi_verify_quick(tmp_path: Path) -> None:
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["passed"] is True and metrics["quick"] is True
     assert (report / "index.html").is_file() and (report / "junit.xml").is_file()
-    # nothing written into the checkout pip installed from (it tracks reports/README.md only)
+    # nothing written into the checkout pip installed from (of reports/ it tracks README.md and mutation/ only)
     assert not list((src / "reports").glob("2*")) and not (src / "runs").exists()

@@ -196,3 +196,84 @@ def _threads_after(delay):
 
     time.sleep(delay)
     return delay, solver.threads(), os.environ.get("OMP_NUM_THREADS")
+
+
+# ------------------------------------------------------------------ submit: a long run started early
+
+
+def _stamped(delay, marker=None):
+    t0 = time.time()
+    if marker:
+        Path(marker).write_text("started")
+    time.sleep(delay)
+    return os.getpid(), t0, time.time()
+
+
+def test_submitted_task_runs_beside_the_maps_that_follow_it(tmp_path) -> None:
+    """verify starts a check's longest run before the first check (start_early): on two workers it
+    must occupy one of them while later maps run on the other, and come back by result()."""
+    marker = tmp_path / "started"
+    with parallel.cluster(jobs=2) as c:
+        early = parallel.submit(_stamped, (3.0, str(marker)))
+        deadline = time.time() + 60
+        while not marker.exists() and time.time() < deadline:
+            time.sleep(0.05)
+        outs = parallel.pmap(_stamped, [(0.1,), (0.1,), (0.1,)])
+        pid, t0, t1 = early.result()
+        failed = parallel.submit(_stamped, ("not a number",)).result()
+        assert c.tasks == 5 and not c.reruns
+    assert all(o[0] != pid for o in outs), "the maps ran on the other worker"
+    assert all(t0 < o[1] and o[2] < t1 for o in outs), "the maps ran while the early task was running"
+    assert isinstance(failed, TypeError), "an exception inside the task is its value, as in pmap"
+
+
+def test_submit_outside_a_cluster_runs_when_asked() -> None:
+    p = parallel.submit(_stamped, (0.0,))
+    before = time.time()
+    assert p.result()[1] >= before, "serially, the task runs at result()"
+
+
+EARLY_NAME = "early_probe"
+_order: list[str] = []
+
+
+class _EarlyCheck:
+    """A check module whose run comes from its start_early."""
+
+    REQUIREMENT = "a check that takes its run from start_early"
+
+    @staticmethod
+    def start_early(ctx) -> None:
+        _order.append("start_early")
+        ctx.early["run"] = parallel.submit(_stamped, (0.0,))
+
+    @staticmethod
+    def run(ctx) -> CheckResult:
+        _order.append("run")
+        res = CheckResult(EARLY_NAME, _EarlyCheck.REQUIREMENT)
+        res.metrics["early_pid"] = float(ctx.early["run"].result()[0])
+        res.gates.append(Gate.at_most("zero", 0.0, 0.0))
+        return res
+
+
+def test_verify_starts_every_early_run_before_the_first_check(tmp_path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, f"harness.checks.{EARLY_NAME}", _EarlyCheck)
+    monkeypatch.setitem(sys.modules, f"harness.checks.{NAME}_first", _FirstCheck)
+    monkeypatch.setattr("harness.paths.work_root", lambda: tmp_path)
+    _order.clear()
+    metrics, _ = verify.verify(True, [f"{NAME}_first", EARLY_NAME], tmp_path / "report", progress=False, jobs=1)
+    assert _order == ["start_early", "first", "run"]
+    assert metrics["checks"][EARLY_NAME]["passed"]
+
+
+class _FirstCheck:
+    """A check module without start_early, run before early_probe."""
+
+    REQUIREMENT = "runs first"
+
+    @staticmethod
+    def run(ctx) -> CheckResult:
+        _order.append("first")
+        res = CheckResult(f"{NAME}_first", "runs first")
+        res.gates.append(Gate.at_most("zero", 0.0, 0.0))
+        return res

@@ -177,9 +177,9 @@ def core_control() -> float:
 def round_trip_control() -> float:
     """What moving a cache line between the two cores costs now [ns]: the median of
     ROUND_TRIP_BURSTS bursts of ROUND_TRIP_ITERS round trips between two threads of a fresh
-    process (solver.core_round_trip). About 55 ns on this VM; 345 ns in the stretches in which
-    the host puts its two vCPUs apart, where the 2-thread step pays for every line its phases
-    hand from one core to the other (docs/notes/threads.md)."""
+    process (solver.core_round_trip). It costs several times more in the stretches in which the
+    host puts its two vCPUs apart, where the 2-thread step pays for every line its phases hand
+    from one core to the other (the figures: docs/notes/threads.md)."""
     code = ("import json, statistics; from harness import solver; "
             f"print(json.dumps({{'ns': statistics.median(solver.core_round_trip({ROUND_TRIP_ITERS}) "
             f"for _ in range({ROUND_TRIP_BURSTS}))}}))")
@@ -202,27 +202,27 @@ def speedup_windows(size: str, say, need: int = WINDOWS_VALID, most: int = WINDO
 
     A window runs, back to back: the core control, 1 thread and 2 threads in turns of
     bench_interleave.CHUNK steps (two fresh processes, one stepping at a time: a spell of the host
-    during the runs falls on both; run one after the other, windows whose controls both read
-    1.86-2.24 gave 1.38 and 1.41 at e67bb98 beside 1.84-2.05), the core control again. A shared VM
+    during the runs falls on both; run one after the other, windows with good controls on both
+    sides still gave outlying speed-ups: docs/notes/threads.md), the core control again. A shared VM
     has spells in which its two vCPUs deliver one core's work (seen here: two independent processes
     each at half speed); a window counts when both its controls reach CONTROL_MIN (so a spell that
     starts or ends during the timed runs is caught on one side), and the gate takes the median
     speed-up of the first `need` such windows (at most `most` windows are tried). Every window is
-    kept. The runs of a window are WINDOW_STEPS long (300 at 32k, 0.9 s on one thread): at 100 steps
-    a window was one 0.3 s pair, and its readings spread from 1.47 to 2.31 on one idle host.
+    kept. The runs of a window are WINDOW_STEPS long: a window of a third as many steps was one
+    short pair, and its readings spread widely on an idle host (docs/notes/threads.md).
 
-    The host also has spells (3-26 s, about a fifth of the time on this VM) in which it keeps two
-    full vCPUs but places them where a cache-line round trip takes 345 ns instead of 55 ns; a
-    2-thread step hands lines between the cores at every phase and loses about a tenth of its
-    speed-up there, which no busy-loop control sees. So each control also measures that round
+    The host also has spells in which it keeps two full vCPUs but places them where a cache-line
+    round trip takes several times longer; a 2-thread step hands lines between the cores at every
+    phase and loses part of its speed-up there, which no busy-loop control sees (how long, how
+    often and how much: docs/notes/threads.md). So each control also measures that round
     trip (round_trip_control), and a window counts only where both of its round trips are within
     ROUND_TRIP_FACTOR of the best the bench has seen (every window is judged again when a better
     one shows). The windows left out for it are kept and their median is reported
     (speedup_far_median).
 
     The control is compute-bound (core_control, busy loops) on purpose. It was two independent
-    1-thread solver runs: those compete for memory bandwidth and cache and reached only
-    1.70-1.91x at 32k on a machine that gave the 2-thread run 1.85-2.03x, so it measured memory
+    1-thread solver runs: those compete for memory bandwidth and cache and read lower than the
+    2-thread run's own speed-up on the same machine (docs/notes/threads.md), so it measured memory
     as well as cores. The solver's own memory-bound scaling is what the gate judges; a control
     that shares that limit would excuse it."""
     from tools import bench_interleave
@@ -359,11 +359,15 @@ def _stop(hogs: list[subprocess.Popen]) -> None:
 
 
 def _machine() -> dict:
-    from harness import available_cores
+    """The machine, and the OpenMP settings the solver loads with here: the user's, else the
+    defaults harness.solver sets as it loads the extension (harness.openmp_defaults)."""
+    from harness import available_cores, openmp_defaults
+
+    omp = {**os.environ, **openmp_defaults(os.environ)}  # as harness.solver applies them
     return {"affinity": sorted(os.sched_getaffinity(0)), "available_cores": available_cores(),
             "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg()),
-            "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY"), "GOMP_SPINCOUNT": os.environ.get("GOMP_SPINCOUNT"),
-            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
+            "OMP_WAIT_POLICY": omp.get("OMP_WAIT_POLICY"), "GOMP_SPINCOUNT": omp.get("GOMP_SPINCOUNT"),
+            "OMP_NUM_THREADS": omp.get("OMP_NUM_THREADS")}
 
 
 def loaded_rows(repeats: int, say) -> list[dict]:
@@ -372,9 +376,8 @@ def loaded_rows(repeats: int, say) -> list[dict]:
 
     The two runs of a pair are fresh processes that step in turns of bench_interleave.CHUNK steps
     (bench_interleave.pair), not one after the other: the host has stretches of seconds in which a
-    process beside a busy loop runs 1.5x slower (a busy loop beside one: 0.20 s, then 0.30-0.33 s
-    for seconds on end; measured at 31df99f), and a 1-thread run in one state with a 2-thread run in
-    the other read 1.46 where both ran the same 1-thread steps (per-step times 6 ms against 9 ms;
+    process beside a busy loop runs markedly slower, and a 1-thread run in one state with a 2-thread
+    run in the other read a large ratio where both ran the same 1-thread steps (the figures:
     docs/notes/threads.md). In turns, a spell falls on both runs alike."""
     from tools import bench_interleave
 
@@ -491,6 +494,26 @@ def _plot_scaling(scal: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+MG_ITERATIONS_MAX = 30   # issue 38: multigrid-CG iterations per solve below 30 from H/30 to H/120
+PRESSURE_CELLS = (0.01, 0.005, 0.0025)   # H/30, H/60, H/120 of the Lobovsky dam break
+
+
+def pressure_solver_rows(cells, steps: int, say) -> list[dict]:
+    """MIC(0)-CG against multigrid-CG in one run (tools/pressure_bench.py): the Lobovsky dam break
+    stepped to t* = 1, then the same steps from that state with each preconditioner, per cell size."""
+    from tools import pressure_bench
+
+    rows = []
+    for cell in cells:
+        r = pressure_bench.measure(cell, 1.0, steps)
+        m, g = r["mic0"], r["multigrid"]
+        say(f"pressure H/{r['H_over_h']} ({r['water_cells']} water cells): MIC(0) {m['iterations_mean']:.1f} it, "
+            f"{1e3 * m['solve_s_per_step']:.1f} ms a step; multigrid {g['iterations_mean']:.1f} it "
+            f"(max {g['iterations_max']}), {1e3 * g['solve_s_per_step']:.1f} ms a step")
+        rows.append(r)
+    return rows
+
+
 def main(quick: bool = False, base: str | None = None) -> int:
     from harness import provenance
 
@@ -542,6 +565,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
         based = base_rows(base, 3 if quick else BASE_REPEATS, say) if base else None
         water = bench_water.run(quick)
         fsi, fsi_gates = bench_fsi.run(quick, base, say)
+        pressure = pressure_solver_rows(PRESSURE_CELLS[:2] if quick else PRESSURE_CELLS, 5 if quick else 20, say)
     except RuntimeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -557,6 +581,9 @@ def main(quick: bool = False, base: str | None = None) -> int:
     gates["water_incompressible_speedup_real_k"] = {"value": water[2]["speedup_of_incompressible"], "min": 20.0,
                                                     "pass": water[2]["speedup_of_incompressible"] >= 20.0}
     gates.update(fsi_gates)
+    worst = max(r["multigrid"]["iterations_max"] for r in pressure)
+    gates["multigrid_iterations_max"] = {"value": float(worst), "max": MG_ITERATIONS_MAX,
+                                         "pass": worst < MG_ITERATIONS_MAX}
     for k, g in gates.items():
         bound = f"<= {g['max']}" if "max" in g else f">= {g['min']}"
         value = "n/a" if g["value"] is None else f"{g['value']:.3f}"
@@ -565,7 +592,7 @@ def main(quick: bool = False, base: str | None = None) -> int:
             "provenance": provenance.collect(REPO, REPO / "build" / "fortran"), "quick": quick,
             "machine": {"start": machine_start, "end": _machine()}, "loaded": loaded, "scaling": scal,
             "speedup_windows": windows,
-            "base": based, "gates": gates, "water_models": water, "fsi": fsi}
+            "base": based, "gates": gates, "water_models": water, "fsi": fsi, "pressure_solvers": pressure}
     (OUT / "bench.json").write_text(json.dumps(data, indent=2) + "\n")
     _plot(rows, OUT / "bench.png")
     _plot_phases(rows, OUT / "phases.png")

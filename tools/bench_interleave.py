@@ -2,9 +2,9 @@
 
 make bench's loaded gate compares a 2-thread run with a 1-thread run beside the same busy
 processes. Run one after the other, the two met different machines in some pairs: the host has
-stretches of seconds in which a process beside a busy loop runs 1.5x slower, and a 2-thread run
-that ran the very same 1-thread steps as its partner (its team choice had settled on one thread)
-read 1.46x slower (docs/notes/threads.md). Here both processes are built and warmed up first, then
+stretches of seconds in which a process beside a busy loop runs markedly slower, and a 2-thread
+run that ran the very same 1-thread steps as its partner (its team choice had settled on one
+thread) read far slower (the figures: docs/notes/threads.md). Here both processes are built and warmed up first, then
 step CHUNK steps each in turns (the first to go alternates), so a spell of the machine falls on
 both runs alike. Only one process steps at a time; the other waits on a pipe, its threads asleep.
 Each process is a fresh one, as a user's run is: the 2-thread run chooses its team and probes the

@@ -28,9 +28,11 @@ module cpdi_contact
 
 contains
 
-  subroutine contact_correct(g, vx, vy, mtol, mu, vfull, rigidf, work)
-    !! Correct the field velocities vx, vy (node, field) in place; add frictional work to `work`.
+  subroutine contact_correct(g, kw, vx, vy, mtol, mu, vfull, rigidf, work)
+    !! Correct the field velocities vx, vy (node, field) in place on nodes kw(1)..kw(2) (no
+    !! field has mass outside them); add frictional work to `work`.
     type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: kw(2)
     real(wp), intent(inout) :: vx(:, :), vy(:, :)
     real(wp), intent(in) :: mtol, mu, vfull
     logical, intent(in) :: rigidf(:)
@@ -38,7 +40,7 @@ contains
     integer(ik) :: k, f, nfm, frig
     real(wp) :: msum, vcm(2), gs(2), nrm(2), nn, dv(2), dvn, dvt(2), tn, mup, dc(2), vsum
 
-    do k = 1, g%nnodes
+    do k = kw(1), kw(2)
       nfm = 0
       msum = 0.0_wp
       vcm = 0.0_wp

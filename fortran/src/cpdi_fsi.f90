@@ -205,8 +205,8 @@ contains
         g%vy(:, 1) = 0.0_wp
       end where
       if (s%any_rigid) then
-        call impose_rigid(g, g%px, g%py)
-        call impose_rigid(g, g%vx, g%vy)
+        call impose_rigid(g, [1_ik, g%nnodes], g%px, g%py)
+        call impose_rigid(g, [1_ik, g%nnodes], g%vx, g%vy)
       end if
       if (vwalls) then
         ! the walls under the solid's volume constraint, as with contact: a solid reaching a wall

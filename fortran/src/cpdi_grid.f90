@@ -35,6 +35,7 @@ module cpdi_grid
     real(wp), allocatable :: prx(:, :), pry(:, :) !! momentum of rigid particles at the node
     real(wp), allocatable :: gmx(:, :), gmy(:, :) !! mass gradient sum m_p grad S_ip (contact normals)
     real(wp), allocatable :: gv(:, :)     !! nodal volume sum S_ip V_p (contact fullness)
+    real(wp), allocatable :: infrac(:)    !! inside_fraction of every node (set with the fields)
   contains
     procedure :: node_id => grid_node_id
     procedure :: node_x => grid_node_x
@@ -99,15 +100,17 @@ contains
     logical, intent(in) :: rigid, volumes
     type(status_t), intent(inout) :: st
     integer :: ierr, n, nr
+    integer(ik) :: k
     if (allocated(g%m)) then
       if (g%nf == nf .and. ((size(g%mr, 2) > 0) .eqv. rigid) .and. ((size(g%gv, 2) > 0) .eqv. volumes)) return
     end if
     if (allocated(g%m)) deallocate (g%m, g%px, g%py, g%fx, g%fy, g%vx, g%vy, g%mr, g%prx, g%pry, g%gmx, g%gmy, g%gv)
+    if (allocated(g%infrac)) deallocate (g%infrac)
     n = g%nnodes
     nr = merge(nf, 0_ik, rigid)
     allocate (g%m(n, nf), g%px(n, nf), g%py(n, nf), g%fx(n, nf), g%fy(n, nf), g%vx(n, nf), g%vy(n, nf), &
               g%mr(n, nr), g%prx(n, nr), g%pry(n, nr), g%gmx(n, merge(nf, 0_ik, nf > 1)), &
-              g%gmy(n, merge(nf, 0_ik, nf > 1)), g%gv(n, merge(nf, 0_ik, volumes)), stat=ierr)
+              g%gmy(n, merge(nf, 0_ik, nf > 1)), g%gv(n, merge(nf, 0_ik, volumes)), g%infrac(n), stat=ierr)
     if (ierr /= 0) then
       call st%set(CPDI_ERR_ALLOC, 'could not allocate the grid; use a larger cell size')
       g%nf = 0
@@ -124,6 +127,9 @@ contains
     g%mr = 0.0_wp
     g%prx = 0.0_wp
     g%pry = 0.0_wp
+    do k = 1, n   ! a table: contact and the walls' volume constraint ask for it every step
+      g%infrac(k) = node_inside_fraction(g, k)
+    end do
   end subroutine grid_fields
 
   pure integer(ik) function grid_node_id(self, i, j)
@@ -147,7 +153,8 @@ contains
     !! Orphaned worksharing (a static split of the nodes; no barrier at its end: the
     !! caller's next worksharing loop or barrier orders it). A routine of its own because
     !! inlined into p2g, beside the strip hand-out, this loop spilled its pointers and
-    !! strides to vector registers (one thread, 32k CPDI: P2G 10 % slower).
+    !! strides to vector registers, and P2G on one thread slowed (measured:
+    !! docs/notes/threads.md, "One thread after the change").
     type(grid_t), intent(inout) :: g
     integer(ik), intent(in) :: k0, k1
     call clear_fields(k0, k1, g%nnodes, g%nf, g%m, g%px, g%py, g%fx, g%fy)
@@ -188,12 +195,16 @@ contains
     real(wp), intent(in), optional :: gv(:)
     real(wp), intent(in), optional :: vfull
     integer(ik) :: i, j, k
+    logical :: vol
 
+    vol = present(gv)   ! without volumes no node is released: released is not called
     if (g%walls(1) /= WALL_OPEN) then
       do j = 1, g%nn(2)
         do i = 1, g%wall_node(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k + 1)) cycle
+          if (vol) then
+            if (released(k, k + 1)) cycle
+          end if
           vx(k) = 0.0_wp
           if (g%walls(1) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -203,7 +214,9 @@ contains
       do j = 1, g%nn(2)
         do i = g%wall_node(2), g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k - 1)) cycle
+          if (vol) then
+            if (released(k, k - 1)) cycle
+          end if
           vx(k) = 0.0_wp
           if (g%walls(2) == WALL_NOSLIP) vy(k) = 0.0_wp
         end do
@@ -213,7 +226,9 @@ contains
       do j = 1, g%wall_node(3)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k + g%nn(1))) cycle
+          if (vol) then
+            if (released(k, k + g%nn(1))) cycle
+          end if
           vy(k) = 0.0_wp
           if (g%walls(3) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
@@ -223,7 +238,9 @@ contains
       do j = g%wall_node(4), g%nn(2)
         do i = 1, g%nn(1)
           k = i + (j - 1)*g%nn(1)
-          if (released(k, k - g%nn(1))) cycle
+          if (vol) then
+            if (released(k, k - g%nn(1))) cycle
+          end if
           vy(k) = 0.0_wp
           if (g%walls(4) == WALL_NOSLIP) vx(k) = 0.0_wp
         end do
@@ -234,14 +251,26 @@ contains
       !! Field passes wall node k (kin: the next node inward).
       integer(ik), intent(in) :: k, kin
       released = .false.
-      if (.not. present(gv)) return
+      if (.not. vol) return
       if (kin < 1 .or. kin > g%nnodes) return
       released = gv(k)*inside_fraction(g, kin) < (vfull/g%h**2)*gv(kin)*inside_fraction(g, k)
     end function released
   end subroutine grid_apply_walls
   pure real(wp) function inside_fraction(g, k)
     !! Fraction of node k's bilinear hat integral that lies inside the physical domain
-    !! (1 inside, 1/2 on a wall, 1/4 in a corner, 0 beyond).
+    !! (1 inside, 1/2 on a wall, 1/4 in a corner, 0 beyond): the table g%infrac once the
+    !! fields are allocated (grid_fields), else node_inside_fraction.
+    type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: k
+    if (allocated(g%infrac)) then
+      inside_fraction = g%infrac(k)
+    else
+      inside_fraction = node_inside_fraction(g, k)
+    end if
+  end function inside_fraction
+
+  pure real(wp) function node_inside_fraction(g, k)
+    !! inside_fraction of node k, computed from its position.
     type(grid_t), intent(in) :: g
     integer(ik), intent(in) :: k
     real(wp) :: x(2), lo(2), hi(2)
@@ -249,11 +278,11 @@ contains
     x = g%node_x(k)
     lo = g%origin
     hi = g%origin + real(g%ncell, wp)*g%h
-    inside_fraction = 1.0_wp
+    node_inside_fraction = 1.0_wp
     do a = 1, 2
-      inside_fraction = inside_fraction*hat_part(x(a) - lo(a), g%h)*hat_part(hi(a) - x(a), g%h)
+      node_inside_fraction = node_inside_fraction*hat_part(x(a) - lo(a), g%h)*hat_part(hi(a) - x(a), g%h)
     end do
-  end function inside_fraction
+  end function node_inside_fraction
 
   pure real(wp) function hat_part(d, h)
     !! Share of a 1D hat of half-width h centred at distance d inside a boundary.

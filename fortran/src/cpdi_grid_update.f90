@@ -40,7 +40,7 @@ contains
       call momentum_to_velocity(g, s%mtol, s%kw, g%px, g%py)
       if (s%any_rigid) then
         !$omp single
-        call impose_rigid(g, g%px, g%py)
+        call impose_rigid(g, s%kw, g%px, g%py)
         !$omp end single
       end if
       ! Contact corrects the integrated velocity only: the FLIP increment v^{n+1} - v^n then
@@ -67,13 +67,13 @@ contains
         !$omp end do
       end do
       !$omp single
-      if (s%any_rigid) call impose_rigid(g, g%vx, g%vy)
+      if (s%any_rigid) call impose_rigid(g, s%kw, g%vx, g%vy)
       do f = 1, g%nf
         call walls_of_field(s, f, g%px(:, f), g%py(:, f))
         call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
       end do
       if (g%nf > 1) then
-        call contact_correct(g, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(13))
+        call contact_correct(g, s%kw, g%vx, g%vy, s%mtol, s%friction, s%fullness*g%h**2, s%field_rigid, s%diag(13))
         do f = 1, g%nf
           call walls_of_field(s, f, g%vx(:, f), g%vy(:, f))
         end do
@@ -122,13 +122,15 @@ contains
     end do
   end subroutine momentum_to_velocity
 
-  subroutine impose_rigid(g, vx, vy)
-    !! Nodes touched by rigid particles move with them (clamped body), field by field.
+  subroutine impose_rigid(g, kw, vx, vy)
+    !! Nodes touched by rigid particles move with them (clamped body), field by field, on nodes
+    !! kw(1)..kw(2) (the rigid mass mr is zero outside them).
     type(grid_t), intent(in) :: g
+    integer(ik), intent(in) :: kw(2)
     real(wp), intent(inout) :: vx(:, :), vy(:, :)
     integer(ik) :: k, f
     do f = 1, g%nf
-      do k = 1, g%nnodes
+      do k = kw(1), kw(2)
         if (g%mr(k, f) > 0.0_wp) then
           vx(k, f) = g%prx(k, f)/g%mr(k, f)
           vy(k, f) = g%pry(k, f)/g%mr(k, f)

@@ -9,10 +9,9 @@ module cpdi_memory
   !! first touched. It is advice: if the kernel declines (or has no transparent huge
   !! pages) the array keeps 4 KiB pages and nothing else changes. The memory used does not
   !! change either: only whole aligned 2 MiB blocks inside the array are advised.
-  !! Measured (dam break, CPDI, 128k particles, 1 thread, alternating best windows): 4.84 ->
-  !! 5.08 and 4.88 -> 5.02 M particle-updates/s. (glibc's `glibc.malloc.hugetlb=1` tunable,
-  !! which advises every malloc'd block, gave 5.04 -> 5.40 but must be set before the process
-  !! starts.)
+  !! The gain, and that of glibc's `glibc.malloc.hugetlb=1` tunable (which advises every
+  !! malloc'd block but must be set before the process starts), are measured in
+  !! docs/notes/performance_measurements.md, "Transparent huge pages".
   use, intrinsic :: iso_c_binding, only: c_ptr, c_loc, c_int, c_size_t, c_intptr_t
   use cpdi_kinds, only: wp, ik
   implicit none

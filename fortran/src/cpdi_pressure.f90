@@ -80,6 +80,7 @@ module cpdi_pressure
     real(wp), allocatable :: ua(:), va(:)    !! face coefficients rho_w / rho_face (1 on water faces)
     real(wp), allocatable :: rvx(:), rvy(:)  !! velocity of a CELL_SOLID cell (0: wall; a rigid body's)
     integer(ik) :: nfluid = 0                !! water cells
+    integer(ik), allocatable :: slo(:), shi(:) !! per row j: first and last water cell (slo > shi: none), set by each solve
     ! A low-rank term of the matrix (free rigid bodies, cpdi_rigid_body): A += sum_b J_b D_b J_b^T,
     ! J_b the body's 3 columns (x, y velocity, rotation) over the cells it bounds, D_b = rho M_b^-1.
     integer(ik) :: nlr = 0                   !! entries of the term (0: none)
@@ -120,8 +121,9 @@ contains
                                         mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
                                         mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy, mc%rgn, mc%stk, mc%rlab, mc%rcnt, &
-                                        mc%rsum)
-    allocate (mc%cell(n), mc%fill(n), mc%lvl(n), mc%lvt(n), &
+                                        mc%rsum, mc%slo, mc%shi)
+    allocate (mc%slo(nn(2)), mc%shi(nn(2)), &
+              mc%cell(n), mc%fill(n), mc%lvl(n), mc%lvt(n), &
               mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
               mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), mc%rgn(n), mc%stk(n), mc%rlab(n), &
@@ -459,18 +461,23 @@ contains
     end do
   end subroutine mac_assemble
 
-  subroutine mac_apply(mc, x, y)
-    !! y = A x on the water cells (0 elsewhere).
+  subroutine mac_apply(mc, x, y, spans)
+    !! y = A x on the water cells (0 elsewhere). With spans, only each row's span of water cells
+    !! (slo..shi, set by the solve) is written: y must already vanish outside them.
     type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: x(:)
     real(wp), intent(inout) :: y(:)
+    logical, intent(in), optional :: spans
     integer(ik) :: i, j, c, n1
+    logical :: sp
     n1 = mc%nn(1)
+    sp = .false.
+    if (present(spans)) sp = spans
     ! rows in parallel: each cell's value is computed as serially, so any thread count gives
     ! the same bits
     !$omp parallel do if (cg_parallel(mc)) default(shared) private(i, c) schedule(static)
     do j = mc%lo(2), mc%hi(2)
-      do i = mc%lo(1), mc%hi(1)
+      do i = merge(mc%slo(j), mc%lo(1), sp), merge(mc%shi(j), mc%hi(1), sp)
         c = i + (j - 1)*n1
         if (mc%cell(c) /= CELL_FLUID) then
           y(c) = 0.0_wp
@@ -552,16 +559,17 @@ contains
   end subroutine mic0_apply
 
   real(wp) function fdot(mc, x, y)
-    !! Sum of x y over the physical cells (x and y vanish outside the water): each row's dot
-    !! product (in parallel), then the rows in order, as the serial loop summed them.
+    !! Sum of x y over the water cells: each row's dot product over its span of water cells
+    !! (slo..shi, in parallel; x y vanishes outside, so the row's serial sum is the same), then
+    !! the rows in order, as the serial loop summed them.
     type(mac_t), intent(in) :: mc
     real(wp), intent(in) :: x(:), y(:)
     real(wp) :: row(mc%lo(2):mc%hi(2))
     integer(ik) :: j, c0, c1
     !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
     do j = mc%lo(2), mc%hi(2)
-      c0 = mc%lo(1) + (j - 1)*mc%nn(1)
-      c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+      c0 = mc%slo(j) + (j - 1)*mc%nn(1)
+      c1 = mc%shi(j) + (j - 1)*mc%nn(1)
       row(j) = dot_product(x(c0:c1), y(c0:c1))
     end do
     !$omp end parallel do
@@ -595,6 +603,11 @@ contains
     mc%p = 0.0_wp
     converged = .true.
     if (mc%nfluid == 0) return
+    ! the CG's vectors live on the rows' spans of water cells; r and q vanish outside them
+    ! (z and s: the preconditioners write 0 at every cell that is not water)
+    call fluid_spans(mc)
+    mc%r = 0.0_wp
+    mc%q = 0.0_wp
     call find_closed(mc)
     if (mc%nfloat > 0) then
       bnorm = sqrt(fdot(mc, mc%b, mc%b))
@@ -606,10 +619,10 @@ contains
       mc%p = 0.0_wp
       return
     end if
-    call mac_apply(mc, mc%p, mc%q)
+    call mac_apply(mc, mc%p, mc%q, spans=.true.)
     do j = mc%lo(2), mc%hi(2)
-      c0 = mc%lo(1) + (j - 1)*mc%nn(1)
-      c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+      c0 = mc%slo(j) + (j - 1)*mc%nn(1)
+      c1 = mc%shi(j) + (j - 1)*mc%nn(1)
       mc%r(c0:c1) = mc%b(c0:c1) - mc%q(c0:c1)
     end do
     rnorm = sqrt(fdot(mc, mc%r, mc%r))
@@ -620,12 +633,12 @@ contains
     rz = fdot(mc, mc%r, mc%z)
     converged = .false.
     do it = 1, maxit
-      call mac_apply(mc, mc%s, mc%q)
+      call mac_apply(mc, mc%s, mc%q, spans=.true.)
       alpha = rz/fdot(mc, mc%s, mc%q)
       !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
       do j = mc%lo(2), mc%hi(2)
-        c0 = mc%lo(1) + (j - 1)*mc%nn(1)
-        c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+        c0 = mc%slo(j) + (j - 1)*mc%nn(1)
+        c1 = mc%shi(j) + (j - 1)*mc%nn(1)
         mc%p(c0:c1) = mc%p(c0:c1) + alpha*mc%s(c0:c1)
         mc%r(c0:c1) = mc%r(c0:c1) - alpha*mc%q(c0:c1)
       end do
@@ -643,8 +656,8 @@ contains
       rzn = fdot(mc, mc%r, mc%z)
       !$omp parallel do if (cg_parallel(mc)) default(shared) private(c0, c1) schedule(static)
       do j = mc%lo(2), mc%hi(2)
-        c0 = mc%lo(1) + (j - 1)*mc%nn(1)
-        c1 = mc%hi(1) + (j - 1)*mc%nn(1)
+        c0 = mc%slo(j) + (j - 1)*mc%nn(1)
+        c1 = mc%shi(j) + (j - 1)*mc%nn(1)
         mc%s(c0:c1) = mc%z(c0:c1) + (rzn/rz)*mc%s(c0:c1)
       end do
       !$omp end parallel do
@@ -652,6 +665,25 @@ contains
     end do
     if (converged .and. mc%nfloat > 0) call fix_reference(mc)
   end subroutine mac_solve
+
+  subroutine fluid_spans(mc)
+    !! slo(j), shi(j): the first and last water cell of each physical row j (slo > shi: none).
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c
+    !$omp parallel do if (cg_parallel(mc)) default(shared) private(i, c) schedule(static)
+    do j = mc%lo(2), mc%hi(2)
+      mc%slo(j) = mc%hi(1) + 1
+      mc%shi(j) = mc%lo(1) - 1
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*mc%nn(1)
+        if (mc%cell(c) == CELL_FLUID) then
+          mc%slo(j) = min(mc%slo(j), i)
+          mc%shi(j) = i
+        end if
+      end do
+    end do
+    !$omp end parallel do
+  end subroutine fluid_spans
 
   subroutine mac_precondition(mc, setup)
     !! z = M^-1 r on the water cells (0 elsewhere), M the preconditioner mc%precond, set up

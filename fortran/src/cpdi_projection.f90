@@ -66,6 +66,7 @@ module cpdi_projection
     logical :: own = .true.              !! cell scatters use sp (no colouring was given)
     logical :: massed = .false.          !! hd holds the cell masses of this operator
     integer(ik) :: cspan(NCHUNK) = 1     !! per block: tallest span of cell rows (setup_cell)
+    integer(ik) :: crange(2, NCHUNK) = 0 !! per block: first and last cell of the rows of its quadrature points
   end type projection_t
 
   public :: projection_alloc, projection_setup, projection_apply, project_scalar, quadrature
@@ -214,7 +215,7 @@ contains
     type(grid_t), intent(in) :: g
     type(particles_t), intent(in) :: p
     logical, intent(in) :: own
-    integer(ik) :: c, lo, hi
+    integer(ik) :: c, lo, hi, rmin, rmax
     type(blocks_t) :: blk
     !$omp single
     pr%nq = merge(1_ik, 4_ik, shape == SHAPE_MPM)
@@ -225,18 +226,23 @@ contains
     do while (block_next(blk, c))
       call chunk_range(c, p%n, lo, hi)
       pr%cspan(c) = 1
-      call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, pr%cspan(c))
+      rmin = huge(1_ik)
+      rmax = -1
+      call locate_block(lo, hi, shape, p%x, p%r, p%r0, g%gorig, 1.0_wp/g%h, g%nn, pr%qc, pr%row, pr%cspan(c), &
+                        rmin, rmax)
+      pr%crange(:, c) = [huge(1_ik), 0_ik]   ! the block's cells: whole rows rmin..rmax
+      if (rmax >= rmin) pr%crange(:, c) = [rmin*(g%nn(1) - 1) + 1, (rmax + 1)*(g%nn(1) - 1)]
     end do
     !$omp barrier
     if (own) call strips_build(pr%sp, pr%row, maxval(pr%cspan))
   end subroutine setup_cell
 
-  subroutine locate_block(lo, hi, shape, x, r, r0, gorig, rh, nn, qc, row, span)
+  subroutine locate_block(lo, hi, shape, x, r, r0, gorig, rh, nn, qc, row, span, rmin, rmax)
     !! Cells of the quadrature points of particles lo..hi (plain arrays), their lowest
-    !! cell row, and the running tallest span of rows.
+    !! cell row, the running tallest span of rows and the running lowest and highest row.
     integer(ik), intent(in) :: lo, hi, shape, nn(2)
     real(wp), intent(in) :: x(2, *), r(4, *), r0(4, *), gorig(2), rh
-    integer(ik), intent(inout) :: qc(4, *), row(*), span
+    integer(ik), intent(inout) :: qc(4, *), row(*), span, rmin, rmax
     integer(ik) :: ip, q, nq, i, j, jmin, jmax
     real(wp) :: xq(2, 4), wq(4)
     do ip = lo, hi
@@ -252,13 +258,16 @@ contains
       end do
       row(ip) = jmin
       span = max(span, jmax - jmin + 1)
+      rmin = min(rmin, jmin)
+      rmax = max(rmax, jmax)
     end do
   end subroutine locate_block
 
   subroutine scatter_cell(pr, sp, p, mask, val, acc, mass)
     !! acc(c) = sum over quadrature points in cell c of w_q m_p val_p (and, if present,
     !! mass(c) = sum of w_q m_p), by the two-colour strips sp: bitwise the same at any
-    !! thread count.
+    !! thread count. Only the cells of the rows from the lowest to the highest one holding a
+    !! quadrature point are cleared and summed (the gathers read no other); the rest keep old values.
     type(projection_t), intent(in) :: pr
     type(strips_t), intent(in) :: sp
     type(particles_t), intent(in) :: p
@@ -266,18 +275,20 @@ contains
     real(wp), intent(in) :: val(:)
     real(wp), intent(inout) :: acc(:)
     real(wp), intent(inout), optional :: mass(:)
-    integer(ik) :: colour, b, c
+    integer(ik) :: colour, b, c, c0, c1
     real(wp) :: wq
     type(blocks_t) :: blk
     wq = 1.0_wp/real(pr%nq, wp)
+    c0 = max(1_ik, minval(pr%crange(1, :)))
+    c1 = min(size(acc, kind=ik), maxval(pr%crange(2, :)))
     !$omp do schedule(static) private(c)
-    do c = 1, size(acc)
+    do c = c0, c1
       acc(c) = 0.0_wp
     end do
     !$omp end do nowait
     if (present(mass)) then
       !$omp do schedule(static) private(c)
-      do c = 1, size(mass)
+      do c = c0, c1
         mass(c) = 0.0_wp
       end do
       !$omp end do nowait
@@ -297,7 +308,7 @@ contains
     end do
     if (.not. present(mass)) return
     !$omp do schedule(static) private(c)
-    do c = 1, size(mass)
+    do c = c0, c1
       if (mass(c) > 0.0_wp) mass(c) = 1.0_wp/mass(c)   ! stored as 1 / mass
     end do
     !$omp end do

@@ -6,8 +6,8 @@ module cpdi_transfer
   !! cpdi_incompressible.)
   !! Part of the explicit step (cpdi_step holds the sequence); OpenMP as described there.
   use cpdi_kinds, only: wp, ik
-  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, hold_on_walls, grid_box, WALL_OPEN
-  use cpdi_shape, only: shape_t, shape_count, shape_slot
+  use cpdi_grid, only: grid_apply_walls, grid_clear_p2g, grid_box, WALL_OPEN
+  use cpdi_shape, only: shape_t
   use cpdi_schedule, only: NCHUNK, chunk_range, blocks_t, block_start, strip_start, block_next
   use cpdi_sim, only: sim_t, UPDATE_MUSL
   use cpdi_grid_update, only: momentum_to_velocity, impose_rigid
@@ -28,17 +28,21 @@ contains
     type(blocks_t) :: blk
 
     call grid_clear_p2g(s%g, s%kw(1), s%kw(2))
+    ! The other sums P2G makes, on the same nodes (outside s%kw they are zero: cpdi_grid_update
+    ! node_range).
     !$omp single
-    if (s%any_rigid) then
-      s%g%mr = 0.0_wp
-      s%g%prx = 0.0_wp
-      s%g%pry = 0.0_wp
-    end if
-    if (s%g%nf > 1) then
-      s%g%gmx = 0.0_wp
-      s%g%gmy = 0.0_wp
-    end if
-    if (size(s%g%gv, 2) > 0) s%g%gv = 0.0_wp
+    associate (k0 => s%kw(1), k1 => s%kw(2))
+      if (s%any_rigid) then
+        s%g%mr(k0:k1, :) = 0.0_wp
+        s%g%prx(k0:k1, :) = 0.0_wp
+        s%g%pry(k0:k1, :) = 0.0_wp
+      end if
+      if (s%g%nf > 1) then
+        s%g%gmx(k0:k1, :) = 0.0_wp
+        s%g%gmy(k0:k1, :) = 0.0_wp
+      end if
+      if (size(s%g%gv, 2) > 0) s%g%gv(k0:k1, :) = 0.0_wp
+    end associate
     !$omp end single
     simple = s%g%nf == 1 .and. .not. s%any_rigid .and. size(s%g%gv, 2) == 0
     do colour = 1, 2
@@ -127,8 +131,8 @@ contains
         bx = mp*(s%opt%gravity(1) + p%bf(1, ip))
         by = mp*(s%opt%gravity(2) + p%bf(2, ip))
         rig = s%rigid(p%mat(ip))
-        do a = 1, shape_count(sh, ip)
-          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+        do a = 1, slot_count(sh, ip)
+          call slot(sh, ip, a, k, wk, gxk, gyk)
           wm = wk*mp
           g%m(k, f) = g%m(k, f) + wm
           g%px(k, f) = g%px(k, f) + wk*mvx
@@ -224,8 +228,8 @@ contains
           dvy = 0.0_wp
           vnx = 0.0_wp
           vny = 0.0_wp
-          do a = 1, shape_count(sh, ip)
-            call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+          do a = 1, slot_count(sh, ip)
+            call slot(sh, ip, a, k, wk, gxk, gyk)
             vnx = vnx + wk*g%vx(k, f)
             vny = vny + wk*g%vy(k, f)
             dvx = dvx + wk*(g%vx(k, f) - g%px(k, f))
@@ -236,7 +240,7 @@ contains
           p%x(1, ip) = xo(1) + dt*vnx
           p%x(2, ip) = xo(2) + dt*vny
           if (.not. musl .or. g%nf > 1) p%L(:, ip) = velocity_gradient(sh, g%vx(:, f), g%vy(:, f), ip)
-          call hold_on_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
+          call hold_walls(p%x(:, ip), xmin, xmax, closed, nclamp)
         end if
         ke = ke + 0.5_wp*mp*(p%v(1, ip)**2 + p%v(2, ip)**2)
         mom = mom + mp*p%v(:, ip)
@@ -279,7 +283,7 @@ contains
       pv(2, ip) = flip*(pv(2, ip) + dvy) + (1.0_wp - flip)*vny
       px(1, ip) = xo(1) + dt*vnx
       px(2, ip) = xo(2) + dt*vny
-      call hold_on_walls(px(:, ip), xmin, xmax, closed, nclamp)
+      call hold_walls(px(:, ip), xmin, xmax, closed, nclamp)
       ke = ke + 0.5_wp*mp*(pv(1, ip)**2 + pv(2, ip)**2)
       mom = mom + mp*pv(:, ip)
       wg = wg + mp*dot_product(grav, px(:, ip) - xo)
@@ -389,8 +393,8 @@ contains
     integer(ik) :: a, k
     real(wp) :: wk, gxk, gyk
     l = 0.0_wp
-    do a = 1, shape_count(sh, ip)
-      call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+    do a = 1, slot_count(sh, ip)
+      call slot(sh, ip, a, k, wk, gxk, gyk)
       l(1) = l(1) + vx(k)*gxk
       l(2) = l(2) + vy(k)*gxk
       l(3) = l(3) + vx(k)*gyk
@@ -405,12 +409,14 @@ contains
     type(sim_t), intent(inout) :: s
     integer(ik) :: ip, k, f, b, colour, c, lo, hi
     type(blocks_t) :: blk
-    !$omp do schedule(static) private(k)
-    do k = s%kw(1), s%kw(2)
-      s%g%vx(k, :) = 0.0_wp
-      s%g%vy(k, :) = 0.0_wp
+    do f = 1, s%g%nf   ! field by field: a row of fields per node was a strided loop per node
+      !$omp do schedule(static) private(k)
+      do k = s%kw(1), s%kw(2)
+        s%g%vx(k, f) = 0.0_wp
+        s%g%vy(k, f) = 0.0_wp
+      end do
+      !$omp end do
     end do
-    !$omp end do
     do colour = 1, 2
       call strip_start(blk, s%sp, colour)
       do while (block_next(blk, b))
@@ -425,7 +431,7 @@ contains
     end do
     call momentum_to_velocity(s%g, s%mtol, s%kw, s%g%vx, s%g%vy)
     !$omp single
-    if (s%any_rigid) call impose_rigid(s%g, s%g%vx, s%g%vy)
+    if (s%any_rigid) call impose_rigid(s%g, s%kw, s%g%vx, s%g%vy)
     do f = 1, s%g%nf
       call grid_apply_walls(s%g, s%g%vx(:, f), s%g%vy(:, f))
     end do
@@ -458,12 +464,63 @@ contains
         f = s%field(ip)
         mvx = p%m(ip)*p%v(1, ip)
         mvy = p%m(ip)*p%v(2, ip)
-        do a = 1, shape_count(sh, ip)
-          call shape_slot(sh, ip, a, k, wk, gxk, gyk)
+        do a = 1, slot_count(sh, ip)
+          call slot(sh, ip, a, k, wk, gxk, gyk)
           g%vx(k, f) = g%vx(k, f) + wk*mvx
           g%vy(k, f) = g%vy(k, f) + wk*mvy
         end do
       end do
     end associate
   end subroutine remap_strip
+
+  pure subroutine hold_walls(x, xmin, xmax, closed, nclamp)
+    !! cpdi_grid's hold_on_walls (particles held on closed walls; nclamp counts them), copied
+    !! here so that the G2P loops inline it instead of a call per particle into cpdi_grid
+    !! (no arithmetic: comparisons and copies only).
+    real(wp), intent(inout) :: x(2)
+    real(wp), intent(in) :: xmin(2), xmax(2)
+    logical, intent(in) :: closed(4)
+    integer(ik), intent(inout) :: nclamp
+    integer :: a
+    do a = 1, 2   ! closed = (left, right, bottom, top)
+      if (closed(2*a - 1) .and. x(a) < xmin(a)) then
+        x(a) = xmin(a)
+        nclamp = nclamp + 1
+      end if
+      if (closed(2*a) .and. x(a) > xmax(a)) then
+        x(a) = xmax(a)
+        nclamp = nclamp + 1
+      end if
+    end do
+  end subroutine hold_walls
+
+  pure integer(ik) function slot_count(sh, ip)
+    !! Slots in use by particle ip (cpdi_shape's shape_count). A copy in this module so that the
+    !! general transfers' slot loops inline it: shape_slot, in cpdi_shape, was a call per slot
+    !! (about a tenth of a contact run's step).
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip
+    slot_count = sh%nm
+    if (sh%ovf(ip) /= 0) slot_count = sh%ns
+  end function slot_count
+
+  pure subroutine slot(sh, ip, a, k, w, gx, gy)
+    !! Slot a (1..slot_count) of particle ip: main slot a, or pool slot a - nm (cpdi_shape's
+    !! shape_slot, copied here for inlining; see slot_count).
+    type(shape_t), intent(in) :: sh
+    integer(ik), intent(in) :: ip, a
+    integer(ik), intent(out) :: k
+    real(wp), intent(out) :: w, gx, gy
+    if (a <= sh%nm) then
+      k = sh%idx(a, ip)
+      w = sh%w(a, ip)
+      gx = sh%gx(a, ip)
+      gy = sh%gy(a, ip)
+    else
+      k = sh%pidx(a - sh%nm, sh%ovf(ip))
+      w = sh%pw(a - sh%nm, sh%ovf(ip))
+      gx = sh%pgx(a - sh%nm, sh%ovf(ip))
+      gy = sh%pgy(a - sh%nm, sh%ovf(ip))
+    end if
+  end subroutine slot
 end module cpdi_transfer

@@ -116,9 +116,42 @@ class CheckContext:
     quick: bool
     runs_dir: Path  # scratch directory for the check's simulation runs
     progress: bool = True
+    # runs started before the first check by the check's start_early(ctx) (parallel.submit), by name
+    early: dict[str, Any] = field(default_factory=dict)
 
     @property
     def fig_dir(self) -> Path:
         p = self.out_dir / "figures"
         p.mkdir(parents=True, exist_ok=True)
         return p
+
+
+def runs_by_h(fn, hs) -> list:
+    """[fn(h) for h in hs] side by side (harness.parallel.pmap); a failed run raises, named by its h."""
+    from harness import parallel
+
+    outs = parallel.pmap(fn, [(h,) for h in hs])
+    for h, o in zip(hs, outs, strict=True):
+        if isinstance(o, Exception):
+            raise RuntimeError(f"the h = {h:g} run failed: {o}")
+    return outs
+
+
+def put_level_metrics(res: CheckResult, h: float, metrics: dict, steps: int) -> None:
+    """A resolution level's metrics into res, each named h<h>_<key> (h0005_cp_max), and its steps."""
+    tag = f"h{h:g}".replace(".", "")
+    for k, v in metrics.items():
+        res.metrics[f"{tag}_{k}"] = v
+    res.metrics[f"{tag}_steps"] = float(steps)
+
+
+def run_completed(res: CheckResult, suffix: str, label: str, out: Any) -> bool:
+    """Gate `completed<suffix>` that the run `label` reached t_end (out is its result, or the
+    exception it raised, which the gate's text and a note then name); True if it did."""
+    completed = not isinstance(out, Exception)
+    res.metrics[f"completed{suffix}"] = float(completed)
+    res.gates.append(Gate.at_least(f"completed{suffix}", float(completed), 1.0,
+                                   f"{label} reached t_end" + ("" if completed else f": {out}")))
+    if not completed:
+        res.notes.append(f"{label}: did not complete: {out}")
+    return completed

@@ -108,24 +108,48 @@ def _gates(res: CheckResult, m: dict, prefix: str = "") -> list[Gate]:
             Gate.at_most(prefix + "height_rms_dh", m["height_rms_dh"], 0.05)]
 
 
+T_END = 0.5
+REAL_K = ("gated", "off")   # the real-water runs: the longest of verify (acoustic steps), started early
+UPDATES_PER_S = 3.2e6   # one core, weakly compressible, about: cost() in seconds, for parallel.submit's priority
+
+
+def snap_jobs(ctx: CheckContext) -> dict:
+    """The runs with snapshots by label: (n, projection, kinematics, out, t_end, fluid)."""
+    n_fine = 10 if ctx.quick else 20
+    n_inc = 2 * n_fine
+    wc, ic = "weakly_compressible", "incompressible"
+    jobs = {"gated": (n_fine, "cell", "log", ctx.runs_dir / "enhanced", T_END, wc),
+            "off": (n_fine, "none", "small", ctx.runs_dir / "plain", T_END, wc),
+            "incompressible": (n_inc, "none", "log", ctx.runs_dir / "incompressible", T_END, ic)}
+    if not ctx.quick:   # the incompressible front's convergence: L/20 beside L/40
+        jobs["incompressible_coarse"] = (n_inc // 2, "none", "log", ctx.runs_dir / "incompressible_coarse", T_END, ic)
+    return jobs
+
+
+def start_early(ctx: CheckContext) -> None:
+    """The full tier's two real-water runs start with verify (each most of this check's time)."""
+    if not ctx.quick:
+        jobs = snap_jobs(ctx)
+        for label in REAL_K:
+            ctx.early[label] = parallel.submit(_snap_run, jobs[label],
+                                               priority=cost(jobs[label][0], T_END, 2.13e9) / UPDATES_PER_S)
+
+
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)
     n_fine = 10 if ctx.quick else 20
     levels = [10, 20] if ctx.quick else [10, 20, 40]
-    t_end = 0.5
+    t_end = T_END
+    ic = "incompressible"
     n_inc = 2 * n_fine
-    wc, ic = "weakly_compressible", "incompressible"
-    jobs = {"gated": (n_fine, "cell", "log", ctx.runs_dir / "enhanced", t_end, wc),
-            "off": (n_fine, "none", "small", ctx.runs_dir / "plain", t_end, wc),
-            "incompressible": (n_inc, "none", "log", ctx.runs_dir / "incompressible", t_end, ic)}
-    if not ctx.quick:   # the incompressible front's convergence: L/20 beside L/40
-        jobs["incompressible_coarse"] = (n_inc // 2, "none", "log", ctx.runs_dir / "incompressible_coarse", t_end, ic)
+    jobs = snap_jobs(ctx)
     table_jobs = [(n, s, p, K_REDUCED) for n in levels for s in ("mpm", "gimp", "cpdi") for p in ("none", "cell")]
     k_jobs = [(n_fine, "cpdi", "cell", K) for K in (2e6, 2e7, 2e8)]
     # the bulk-modulus table's K = 2e6 row is the resolution table's CPDI, cell row at L/n_fine: run once
     reduced = list(dict.fromkeys(table_jobs + k_jobs))
-    tasks = ([(_snap_run, a, cost(a[0], t_end, None if a[5] == ic else 2.13e9)) for a in jobs.values()]
-             + [(_table_run, j, cost(j[0], 0.45, j[3])) for j in reduced])
+    early = [label for label in jobs if label in ctx.early]
+    tasks = ([(_snap_run, a, cost(a[0], t_end, None if a[5] == ic else 2.13e9)) for label, a in jobs.items()
+              if label not in early] + [(_table_run, j, cost(j[0], 0.45, j[3])) for j in reduced])
     print(f"[{NAME}] 2 real-K runs, {len(jobs) - 2} incompressible and {len(reduced)} reduced-K runs, side by side, "
           "the longest first", flush=True)
     # one map, the longest runs first (by the estimated cost): the short ones fill the workers the
@@ -134,8 +158,11 @@ def run(ctx: CheckContext) -> CheckResult:
     outs: list = [None] * len(tasks)
     for i, out in zip(order, parallel.pmap(parallel.call, [tasks[i][:2] for i in order]), strict=True):
         outs[i] = out
-    big = dict(zip(jobs, outs[:len(jobs)], strict=True))
-    by_job = dict(zip(reduced, outs[len(jobs):], strict=True))
+    n_snap = len(jobs) - len(early)
+    big = dict(zip([label for label in jobs if label not in early], outs[:n_snap], strict=True))
+    big.update({label: ctx.early[label].result() for label in early})
+    big = {label: big[label] for label in jobs}
+    by_job = dict(zip(reduced, outs[n_snap:], strict=True))
     small = [by_job[j] for j in table_jobs + k_jobs]
     gated, off, inc = big["gated"], big["off"], big["incompressible"]
     for label, out in big.items():

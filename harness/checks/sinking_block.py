@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness import cases, parallel, paths, plots, runner
-from harness.checks.base import CheckContext, CheckResult, Gate
+from harness.checks.base import CheckContext, CheckResult, Gate, run_completed
 from harness.problems import fsi
 
 NAME = "sinking_block"
@@ -125,12 +125,7 @@ def run(ctx: CheckContext) -> CheckResult:
     outs = parallel.pmap(simulate, [(x, ctx.runs_dir / (k.lstrip("_") or "base")) for k, (x, _) in chosen.items()])
     curves = {}
     for (suffix, (_, label)), out in zip(chosen.items(), outs, strict=True):
-        completed = not isinstance(out, Exception)
-        res.metrics[f"completed{suffix}"] = float(completed)
-        res.gates.append(Gate.at_least(f"completed{suffix}", float(completed), 1.0,
-                                       f"the {label} run reached t_end" + ("" if completed else f": {out}")))
-        if not completed:
-            res.notes.append(f"{label}: did not complete: {out}")
+        if not run_completed(res, suffix, f"the {label} run", out):
             continue
         res.metrics.update({k + suffix: v for k, v in out["metrics"].items()})
         res.gates += gates(out["metrics"], out["h"], suffix)

@@ -30,7 +30,7 @@ def parser() -> argparse.ArgumentParser:
                     help="time limit per mutant for the full make test (raise it on a loaded machine: a slow run "
                          "must not count as a hang)")
     mu.add_argument("--verify", action="store_true",
-                    help="also run make verify (about 45 min each on 2 cores) on every survivor of make test, "
+                    help="also run make verify (a whole verify each: long) on every survivor of make test, "
                          "those in a resumed journal included: the kill rate with make verify")
     mu.add_argument("--verify-timeout", type=float, default=7200.0, metavar="S",
                     help="time limit per mutant for make verify")

@@ -34,7 +34,7 @@ FAST_TESTS = [  # most specific first: with -x the first failure names the killi
 # The full tier is the rest of `make test` (the fast tier already passed, and so did the Fortran
 # unit tests): every other tests/test_*.py, the slow ones last (with -x a kill by a quick file ends
 # the run within a minute; a survivor runs them all either way). The quick-verify tier alone is
-# about 5 of the full tier's 6-7 minutes on 2 cores.
+# most of the full tier's time (docs/mutation_testing.md).
 FULL_LAST = ["tests/test_parallel_dask.py", "tests/test_verify_quick.py"]
 FAILED = re.compile(r"^(?:FAILED|ERROR) (\S+)", re.M)
 
