@@ -250,9 +250,14 @@ contains
   subroutine mac_level_set(mc)
     !! lvl: the water's signed distance from the cell centres, in cells (< 0 in the water), from the
     !! cell fill. The fill (particle volume spread bilinearly over the cell centres) is smoothed once
-    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis (beyond a closed wall the water
-    !! mirrored, as in the fill; beyond an open side the fill extrapolated linearly, within [0, 1]:
-    !! exact for a flat surface on the edge cell's lower face or on the open edge itself), and each cell's smoothed fill f is turned into the distance d at
+    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis. Beyond the bottom or top edge:
+    !! at a closed wall the water mirrored, as in the fill; at an open edge the fill extrapolated
+    !! linearly, within [0, 1] (exact for a flat surface on the edge cell's lower face or on the
+    !! open edge itself). Beyond a side edge, wall or open, the fill extrapolated linearly (within
+    !! [0, 1]): a surface meeting a slip wall continues straight into it, where the mirror made a
+    !! kink of a tilted surface at the wall (accelerated_tank: the water next to the walls moved
+    !! most once the particles' staircase was fine; docs/notes/accelerated_tank.md); for a flat
+    !! surface the two agree. Each cell's smoothed fill f is turned into the distance d at
     !! which a half-plane of water, seen through the same two filters, fills a cell to f:
     !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
     !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
@@ -287,9 +292,9 @@ contains
             c = i + a + (j - 1)*n1
             if (i + a >= mc%lo(1) .and. i + a <= mc%hi(1)) then
               f = f + w(a)*mc%lvl(c)
-            else if (mc%cell(c) == CELL_SOLID .or. mc%lo(1) == mc%hi(1)) then   ! a wall mirrors the water
+            else if (mc%lo(1) == mc%hi(1)) then   ! a single column: its own fill
               f = f + w(a)*mc%lvl(i + (j - 1)*n1)
-            else   ! an open side: the fill extrapolated linearly, within [0, 1]
+            else   ! beyond a side edge, wall or open: the fill extrapolated linearly, within [0, 1]
               f = f + w(a)*min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvl(i + (j - 1)*n1) - mc%lvl(i - a + (j - 1)*n1)))
             end if
           end do
