@@ -250,14 +250,15 @@ contains
   subroutine mac_level_set(mc)
     !! lvl: the water's signed distance from the cell centres, in cells (< 0 in the water), from the
     !! cell fill. The fill (particle volume spread bilinearly over the cell centres) is smoothed once
-    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis. Beyond the bottom or top edge:
-    !! at a closed wall the water mirrored, as in the fill; at an open edge the fill extrapolated
-    !! linearly, within [0, 1] (exact for a flat surface on the edge cell's lower face or on the
-    !! open edge itself). Beyond a side edge, wall or open, the fill extrapolated linearly (within
-    !! [0, 1]): a surface meeting a slip wall continues straight into it, where the mirror made a
-    !! kink of a tilted surface at the wall (accelerated_tank: the water next to the walls moved
-    !! most once the particles' staircase was fine; docs/notes/accelerated_tank.md); for a flat
-    !! surface the two agree. Each cell's smoothed fill f is turned into the distance d at
+    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis. Beyond an open edge the fill is
+    !! extrapolated linearly, within [0, 1] (exact for a flat surface on the edge cell's lower face
+    !! or on the open edge itself). Beyond a closed wall: where the water lies along the wall (its
+    !! fill changes faster across the wall's normal than along the wall: the bottom under a
+    !! surface, a film) the water is mirrored, as in the fill; where a surface meets the wall, the
+    !! fill is extrapolated linearly (within [0, 1]), so that a tilted surface continues straight
+    !! into a slip wall: the mirror made a kink of it at the wall (accelerated_tank: the water next
+    !! to the walls moved most once the particles' staircase was fine; docs/notes/accelerated_tank.md).
+    !! For a flat surface meeting a wall the two agree. Each cell's smoothed fill f is turned into the distance d at
     !! which a half-plane of water, seen through the same two filters, fills a cell to f:
     !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
     !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
@@ -276,7 +277,6 @@ contains
     integer(ik) :: i, j, c, n1, a
     integer :: pass
     real(wp), parameter :: w(-1:1) = [0.25_wp, 0.5_wp, 0.25_wp]
-    real(wp) :: f
     n1 = mc%nn(1)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
@@ -285,38 +285,27 @@ contains
       end do
     end do
     do pass = 1, LVL_PASSES
-      do j = mc%lo(2), mc%hi(2)   ! along x into lvt
+      call ghost_ring()
+      do j = mc%lo(2) - 1, mc%hi(2) + 1   ! along x into lvt, the ghost rows too
         do i = mc%lo(1), mc%hi(1)
-          f = 0.0_wp
-          do a = -1, 1
-            c = i + a + (j - 1)*n1
-            if (i + a >= mc%lo(1) .and. i + a <= mc%hi(1)) then
-              f = f + w(a)*mc%lvl(c)
-            else if (mc%lo(1) == mc%hi(1)) then   ! a single column: its own fill
-              f = f + w(a)*mc%lvl(i + (j - 1)*n1)
-            else   ! beyond a side edge, wall or open: the fill extrapolated linearly, within [0, 1]
-              f = f + w(a)*min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvl(i + (j - 1)*n1) - mc%lvl(i - a + (j - 1)*n1)))
-            end if
-          end do
-          mc%lvt(i + (j - 1)*n1) = f
+          c = i + (j - 1)*n1
+          mc%lvt(c) = w(-1)*mc%lvl(c - 1) + w(0)*mc%lvl(c) + w(1)*mc%lvl(c + 1)
         end do
       end do
       do j = mc%lo(2), mc%hi(2)   ! along y back into lvl
         do i = mc%lo(1), mc%hi(1)
-          f = 0.0_wp
-          do a = -1, 1
-            c = i + (j + a - 1)*n1
-            if (j + a >= mc%lo(2) .and. j + a <= mc%hi(2)) then
-              f = f + w(a)*mc%lvt(c)
-            else if (mc%cell(c) == CELL_SOLID .or. mc%lo(2) == mc%hi(2)) then
-              f = f + w(a)*mc%lvt(i + (j - 1)*n1)
-            else
-              f = f + w(a)*min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvt(i + (j - 1)*n1) - mc%lvt(i + (j - a - 1)*n1)))
-            end if
-          end do
-          mc%lvl(i + (j - 1)*n1) = f
+          c = i + (j - 1)*n1
+          mc%lvl(c) = w(-1)*mc%lvt(c - n1) + w(0)*mc%lvt(c) + w(1)*mc%lvt(c + n1)
         end do
       end do
+    end do
+    do j = mc%lo(2) - 1, mc%hi(2) + 1   ! the ring back to air
+      mc%lvl(mc%lo(1) - 1 + (j - 1)*n1) = LVL_MAX
+      mc%lvl(mc%hi(1) + 1 + (j - 1)*n1) = LVL_MAX
+    end do
+    do i = mc%lo(1), mc%hi(1)
+      mc%lvl(i + (mc%lo(2) - 2)*n1) = LVL_MAX
+      mc%lvl(i + mc%hi(2)*n1) = LVL_MAX
     end do
     do j = mc%lo(2), mc%hi(2)   ! the smoothed fill to the distance
       do i = mc%lo(1), mc%hi(1)
@@ -324,6 +313,82 @@ contains
         mc%lvl(c) = fill_distance(mc%lvl(c))
       end do
     end do
+  contains
+    subroutine ghost_ring()
+      !! The fill one cell beyond each edge (lvl's ring), set before the two passes so that the
+      !! filter is one linear 3 x 3 filter whatever the order of the axes: beyond an open edge the
+      !! fill extrapolated linearly (within [0, 1]); beyond a wall mirrored where the water lies
+      !! along it (along_wall), else extrapolated; beyond the edge of a single row or column its own
+      !! fill. A corner: the mean of its two neighbours in the ring.
+      integer(ik) :: e, k, ki, kg, lo1, hi1, lo2, hi2
+      lo1 = mc%lo(1); hi1 = mc%hi(1); lo2 = mc%lo(2); hi2 = mc%hi(2)
+      do j = lo2, hi2
+        do e = -1, 1, 2
+          k = merge(lo1, hi1, e < 0) + (j - 1)*n1
+          kg = k + e
+          ki = k - e
+          mc%lvl(kg) = ghost(k, ki, kg, merge(k, k - n1, j == lo2), merge(k, k + n1, j == hi2), lo1 == hi1)
+        end do
+      end do
+      do i = lo1, hi1
+        do e = -1, 1, 2
+          k = i + (merge(lo2, hi2, e < 0) - 1)*n1
+          kg = k + e*n1
+          ki = k - e*n1
+          mc%lvl(kg) = ghost(k, ki, kg, merge(k, k - 1, i == lo1), merge(k, k + 1, i == hi1), lo2 == hi2)
+        end do
+      end do
+      do e = -1, 1, 2   ! a corner: the mean of the ring row's and the ring column's rule applied to it
+        do a = -1, 1, 2
+          i = merge(lo1, hi1, e < 0)   ! the corner's edge cell
+          j = merge(lo2, hi2, a < 0)
+          k = i + (j - 1)*n1
+          c = k + e + a*n1
+          mc%lvl(c) = 0.5_wp*(ghost_from(c - e, c - 2*e, mirrors(k, k - e, k + e, merge(k, k - n1, j == lo2), &
+                                                                 merge(k, k + n1, j == hi2), lo1 == hi1)) &
+                              + ghost_from(c - a*n1, c - 2*a*n1, mirrors(k, k - a*n1, k + a*n1, merge(k, k - 1, i == lo1), &
+                                                                         merge(k, k + 1, i == hi1), lo2 == hi2)))
+        end do
+      end do
+    end subroutine ghost_ring
+
+    real(wp) function ghost(k, ki, kg, kt1, kt2, single)
+      !! The ring's fill beyond edge cell k (ki: the next cell inward, kg: the ring cell, kt1 and
+      !! kt2: the edge cells on either side of k along the edge).
+      integer(ik), intent(in) :: k, ki, kg, kt1, kt2
+      logical, intent(in) :: single
+      ghost = ghost_from(k, ki, mirrors(k, ki, kg, kt1, kt2, single))
+    end function ghost
+
+    real(wp) function ghost_from(k, ki, mirror)
+      !! The value beyond k: k's own (mirror) or extrapolated linearly from ki through k, in [0, 1].
+      integer(ik), intent(in) :: k, ki
+      logical, intent(in) :: mirror
+      if (mirror) then
+        ghost_from = mc%lvl(k)
+      else
+        ghost_from = min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvl(k) - mc%lvl(ki)))
+      end if
+    end function ghost_from
+
+    logical function mirrors(k, ki, kg, kt1, kt2, single)
+      !! Whether the ring cell kg beyond edge cell k takes k's own fill: beyond the edge of a single
+      !! row or column, or beyond a wall the water lies along (along_wall).
+      integer(ik), intent(in) :: k, ki, kg, kt1, kt2
+      logical, intent(in) :: single
+      mirrors = single
+      if (.not. mirrors) mirrors = mc%cell(kg) == CELL_SOLID
+      if (mirrors .and. .not. single) mirrors = along_wall(k, ki, kt1, kt2)
+    end function mirrors
+
+    pure logical function along_wall(ke, ki, kt1, kt2)
+      !! Whether the water next to a wall lies along it (its fill, mc%fill, changes more from the
+      !! edge cell ke to the cell ki inward than along the wall from kt1 to kt2, over two cells):
+      !! then the wall mirrors it, else (a surface meeting the wall) the fill continues straight.
+      !! Decided on the unsmoothed fill, so that both passes and an exchange of the axes agree.
+      integer(ik), intent(in) :: ke, ki, kt1, kt2
+      along_wall = abs(mc%fill(ke) - mc%fill(ki)) > 0.5_wp*abs(mc%fill(kt2) - mc%fill(kt1))
+    end function along_wall
   end subroutine mac_level_set
 
   pure real(wp) function fill_distance(f) result(d)
