@@ -29,7 +29,8 @@ module cpdi_incompressible
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
-                           mac_extrapolate, mac_constrain, mac_ghost_pressure, CELL_FLUID, CELL_AIR, CELL_SOLID
+                           mac_extrapolate, mac_constrain, mac_ghost_pressure, mac_level_set, LVL_WATER, CELL_FLUID, CELL_AIR, &
+                           CELL_SOLID
   use cpdi_coupling, only: cpl_fractions, cpl_classify, cpl_close, cpl_assemble, cpl_impulse
   implicit none
   private
@@ -369,7 +370,26 @@ contains
       ! a cell without a particle centre inside the water is still water: the particles'
       ! volume covers it (a pocket of p = 0 there would pull the water around it in)
       ! (batty coupling: cpl_classify, from the water's own fill)
-      if (.not. batty) then
+      ! Water alone (levelset): the surface is mac_level_set's. A cell is water where the level set
+      ! puts its centre inside the water; a cell holding a particle's centre but lying above the
+      ! surface next to a water cell is air (its particles move with the extrapolated velocity of the
+      ! water below, as a level set's particles outside the water do); one holding a particle's
+      ! centre with no such neighbour (spray, a thin sheet) stays water, its surface at theta_min.
+      mc%levelset = .not. ic%coupled
+      if (mc%levelset) then
+        call mac_level_set(mc)
+        do j = mc%lo(2), mc%hi(2)
+          do i = mc%lo(1), mc%hi(1)
+            k = i + (j - 1)*n1
+            if (mc%cell(k) == CELL_SOLID) cycle
+            if (mc%lvl(k) < LVL_WATER) then
+              mc%cell(k) = CELL_FLUID
+            else if (mc%cell(k) == CELL_FLUID) then
+              if (any(mc%lvl([k - 1, k + 1, k - n1, k + n1]) < LVL_WATER)) mc%cell(k) = CELL_AIR
+            end if
+          end do
+        end do
+      else if (.not. batty) then
       do j = mc%lo(2), mc%hi(2)
         do i = mc%lo(1), mc%hi(1)
           k = i + (j - 1)*n1

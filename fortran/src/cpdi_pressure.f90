@@ -9,13 +9,16 @@ module cpdi_pressure
   !! The discrete divergence (cells) and gradient (faces) are adjoint, so the Laplacian is
   !! the 5-point stencil: it has no checkerboard null mode (docs/incompressible_water.md).
   !!
-  !! * Cells hold water (CELL_FLUID: a water particle's centre lies in them), air
+  !! * Cells hold water (CELL_FLUID: a water particle's centre lies in them, or the level set or
+  !!   the fill says so: cpdi_incompressible p2g_faces), air
   !!   (CELL_AIR: p = 0) or a wall (CELL_SOLID: beyond a closed wall; the face to it carries
   !!   the wall's zero normal velocity, a Neumann condition for p).
-  !! * Free surface, ghost fluid (Gibou et al. 2002): the surface lies where the cell fill
-  !!   fraction (particle volume per cell area, smoothed bilinearly) falls through 1/2 between
-  !!   a water cell and an air cell, at theta h from the water cell's centre; the air side's
-  !!   pressure is the ghost value p_c (1 - 1/theta), so p = 0 on the surface itself.
+  !! * Free surface, ghost fluid (Gibou et al. 2002): the surface lies at theta h from a water
+  !!   cell's centre towards an air neighbour; the air side's pressure is the ghost value
+  !!   p_c (1 - 1/theta), so p = 0 on the surface itself (mac_theta). Water alone (levelset):
+  !!   where the level set of mac_level_set (a signed distance from the smoothed cell fill)
+  !!   changes sign between the two centres. With solids coupled: where the cell fill fraction
+  !!   (particle volume per cell area, spread bilinearly) falls through 1/2.
   !! * Volume correction (after Kugelstadt et al. 2019): a water cell filled beyond 1 gets
   !!   a divergence target q = beta (fill - 1) / dt, so over-packed water spreads again. It
   !!   is solved for on its own (cpdi_incompressible): its velocity moves the particles but is
@@ -46,6 +49,9 @@ module cpdi_pressure
   integer(ik), parameter, public :: CELL_SOLID = 2
   integer(ik), parameter, public :: FACE_WATER = 1   !! uval, vval: a face the projection set from the water's pressure
   integer(ik), parameter, public :: FACE_WALL = -1   !! uval, vval: a wall's (or body's) face: its normal velocity
+  integer, parameter :: LVL_PASSES = 1        !! mac_level_set: binomial passes over the fill
+  real(wp), parameter :: LVL_MAX = 1.0_wp + LVL_PASSES   !! mac_level_set: |distance| it resolves [h] (the smoothed fill's reach)
+  real(wp), parameter, public :: LVL_WATER = -1.0e-6_wp  !! mac_level_set: a cell centre below this distance is water [h]
   real(wp), parameter :: MIC_TAU = 0.97_wp    !! MIC(0) modification (Bridson 2015)
   real(wp), parameter :: MIC_SIGMA = 0.25_wp  !! MIC(0) safety: fall back to the diagonal below this
   real(wp), parameter :: ANCHOR = 1.0e-10_wp   !! a row of A anchors its region if it sums to more than this of its diagonal
@@ -60,6 +66,9 @@ module cpdi_pressure
     real(wp) :: h = 0.0_wp                   !! cell size [m]
     integer(ik), allocatable :: cell(:)      !! CELL_AIR, CELL_FLUID or CELL_SOLID
     real(wp), allocatable :: fill(:)         !! cell fill fraction [-]
+    logical :: levelset = .false.            !! the surface from lvl (mac_level_set), not from fill
+    real(wp), allocatable :: lvl(:)          !! levelset: signed distance to the surface, in cells (< 0: water)
+    real(wp), allocatable :: lvt(:)          !! levelset: work (the smoothed fill)
     real(wp), allocatable :: um(:), vm(:)    !! face masses
     real(wp), allocatable :: u(:), v(:)      !! face velocities (momenta during P2G)
     real(wp), allocatable :: uo(:), vo(:)    !! face velocities before forces and projection
@@ -96,6 +105,7 @@ module cpdi_pressure
   end type mac_t
 
   public :: mac_precondition
+  public :: mac_level_set, mac_theta
   public :: mac_alloc, mac_clear_system, mac_mark_outside, surface_theta, mac_walls, mac_assemble, mac_solve, mac_project, &
             mac_extrapolate, mac_constrain, mac_ghost_pressure, mac_apply
 
@@ -109,12 +119,14 @@ contains
     type(status_t), intent(inout) :: st
     integer :: ierr, n
     n = nn(1)*nn(2)
-    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
+    if (allocated(mc%cell)) deallocate (mc%cell, mc%fill, mc%lvl, mc%lvt, &
+                                        mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
                                         mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy, mc%rgn, mc%stk, mc%rlab, mc%rcnt, &
                                         mc%rsum, mc%slo, mc%shi)
     allocate (mc%slo(nn(2)), mc%shi(nn(2)), &
-              mc%cell(n), mc%fill(n), mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
+              mc%cell(n), mc%fill(n), mc%lvl(n), mc%lvt(n), &
+              mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
               mc%z(n), mc%s(n), mc%q(n), mc%ua(n), mc%va(n), mc%rvx(n), mc%rvy(n), mc%rgn(n), mc%stk(n), mc%rlab(n), &
               mc%rcnt(n), mc%rsum(n), stat=ierr)
@@ -130,6 +142,8 @@ contains
     mc%h = h
     mc%cell = CELL_AIR
     mc%fill = 0.0_wp
+    mc%lvl = LVL_MAX
+    mc%lvt = 0.0_wp
     mc%um = 0.0_wp
     mc%vm = 0.0_wp
     mc%u = 0.0_wp
@@ -213,6 +227,232 @@ contains
     end if
   end function surface_theta
 
+  pure real(wp) function mac_theta(mc, cw, ca)
+    !! Distance, in cells, from water cell cw's centre to the surface towards its air neighbour ca:
+    !! from the level set where the cell of the surface is mac_level_set's (levelset), from the cell
+    !! fill (surface_theta) otherwise. A water cell whose centre the level set puts outside the
+    !! water (spray, thin sheets: water by its particle's centre alone) has the surface at the option theta_min.
+    type(mac_t), intent(in) :: mc
+    integer(ik), intent(in) :: cw, ca
+    real(wp) :: lw, la
+    if (.not. mc%levelset) then
+      mac_theta = surface_theta(mc%fill(cw), mc%fill(ca))
+      return
+    end if
+    lw = mc%lvl(cw)
+    la = mc%lvl(ca)
+    if (lw >= LVL_WATER) then
+      mac_theta = opt_value(mc%ov, 'theta_min')
+    else if (la < 0.0_wp) then
+      mac_theta = 1.0_wp
+    else
+      mac_theta = min(1.0_wp, max(opt_value(mc%ov, 'theta_min'), lw/(lw - la)))
+    end if
+  end function mac_theta
+
+  subroutine mac_level_set(mc)
+    !! lvl: the water's signed distance from the cell centres, in cells (< 0 in the water), from the
+    !! cell fill. The fill (particle volume spread bilinearly over the cell centres) is smoothed once
+    !! more by the binomial filter (1/4, 1/2, 1/4) along each axis. Beyond an open edge the fill is
+    !! extrapolated linearly, within [0, 1] (exact for a flat surface on the edge cell's lower face
+    !! or on the open edge itself). Beyond a closed wall: where the water lies along the wall (its
+    !! fill changes faster across the wall's normal than along the wall: the bottom under a
+    !! surface, a film) the water is mirrored, as in the fill; where a surface meets the wall, the
+    !! fill is extrapolated linearly (within [0, 1]), so that a tilted surface continues straight
+    !! into a slip wall: the mirror made a kink of it at the wall (accelerated_tank: the water next
+    !! to the walls moved most once the particles' staircase was fine; docs/notes/accelerated_tank.md).
+    !! For a flat surface meeting a wall the two agree. Each cell's smoothed fill f is turned into the distance d at
+    !! which a half-plane of water, seen through the same two filters, fills a cell to f:
+    !! F(d) = sum_k w_k T(d + k), k = -1, 0, 1, with T(d) the bilinear fill of a cell whose centre
+    !! lies d cells above a flat surface ((1 - d)^2 / 2 for 0 <= d <= 1, 1 - (1 + d)^2 / 2 for
+    !! -1 <= d <= 0). For a flat surface the distance is exact (the midpoint sums of the particles
+    !! on their lattice are the filters' integrals); for a tilted plane nearly so, and linear
+    !! interpolation of lvl between two cell centres then places the plane where it is along both
+    !! axes: the ghost-fluid pressure of water at rest under gravity and a uniform body force is
+    !! hydrostatic along both (with the plane's exact distance, accelerated_tank rests to
+    !! round-off). The particles' staircase along a tilted surface (their tops step by one particle
+    !! spacing) is smoothed over about 4 cells, to a plane within about 0.02 h at slope 0.2: the
+    !! fill's 1/2 crossing (bilinear, 2 cells) followed the steps, within about 0.1 h, and its
+    !! pressure errors along the surface moved the water (docs/notes/accelerated_tank.md). More
+    !! passes (LVL_PASSES 2, 3) measured worse there. Cells out of the physical range keep LVL_MAX
+    !! (air).
+    type(mac_t), intent(inout) :: mc
+    integer(ik) :: i, j, c, n1, a
+    integer :: pass
+    real(wp), parameter :: w(-1:1) = [0.25_wp, 0.5_wp, 0.25_wp]
+    n1 = mc%nn(1)
+    do j = mc%lo(2), mc%hi(2)
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        mc%lvl(c) = mc%fill(c)
+      end do
+    end do
+    do pass = 1, LVL_PASSES
+      call ghost_ring()
+      do j = mc%lo(2) - 1, mc%hi(2) + 1   ! along x into lvt, the ghost rows too
+        do i = mc%lo(1), mc%hi(1)
+          c = i + (j - 1)*n1
+          mc%lvt(c) = w(-1)*mc%lvl(c - 1) + w(0)*mc%lvl(c) + w(1)*mc%lvl(c + 1)
+        end do
+      end do
+      do j = mc%lo(2), mc%hi(2)   ! along y back into lvl
+        do i = mc%lo(1), mc%hi(1)
+          c = i + (j - 1)*n1
+          mc%lvl(c) = w(-1)*mc%lvt(c - n1) + w(0)*mc%lvt(c) + w(1)*mc%lvt(c + n1)
+        end do
+      end do
+    end do
+    do j = mc%lo(2) - 1, mc%hi(2) + 1   ! the ring back to air
+      mc%lvl(mc%lo(1) - 1 + (j - 1)*n1) = LVL_MAX
+      mc%lvl(mc%hi(1) + 1 + (j - 1)*n1) = LVL_MAX
+    end do
+    do i = mc%lo(1), mc%hi(1)
+      mc%lvl(i + (mc%lo(2) - 2)*n1) = LVL_MAX
+      mc%lvl(i + mc%hi(2)*n1) = LVL_MAX
+    end do
+    do j = mc%lo(2), mc%hi(2)   ! the smoothed fill to the distance
+      do i = mc%lo(1), mc%hi(1)
+        c = i + (j - 1)*n1
+        mc%lvl(c) = fill_distance(mc%lvl(c))
+      end do
+    end do
+  contains
+    subroutine ghost_ring()
+      !! The fill one cell beyond each edge (lvl's ring), set before the two passes so that the
+      !! filter is one linear 3 x 3 filter whatever the order of the axes: beyond an open edge the
+      !! fill extrapolated linearly (within [0, 1]); beyond a wall mirrored where the water lies
+      !! along it (along_wall), else extrapolated; beyond the edge of a single row or column its own
+      !! fill. A corner: the mean of its two neighbours in the ring.
+      integer(ik) :: e, k, ki, kg, lo1, hi1, lo2, hi2
+      lo1 = mc%lo(1); hi1 = mc%hi(1); lo2 = mc%lo(2); hi2 = mc%hi(2)
+      do j = lo2, hi2
+        do e = -1, 1, 2
+          k = merge(lo1, hi1, e < 0) + (j - 1)*n1
+          kg = k + e
+          ki = k - e
+          mc%lvl(kg) = ghost(k, ki, kg, merge(k, k - n1, j == lo2), merge(k, k + n1, j == hi2), lo1 == hi1)
+        end do
+      end do
+      do i = lo1, hi1
+        do e = -1, 1, 2
+          k = i + (merge(lo2, hi2, e < 0) - 1)*n1
+          kg = k + e*n1
+          ki = k - e*n1
+          mc%lvl(kg) = ghost(k, ki, kg, merge(k, k - 1, i == lo1), merge(k, k + 1, i == hi1), lo2 == hi2)
+        end do
+      end do
+      do e = -1, 1, 2   ! a corner: the mean of the ring row's and the ring column's rule applied to it
+        do a = -1, 1, 2
+          i = merge(lo1, hi1, e < 0)   ! the corner's edge cell
+          j = merge(lo2, hi2, a < 0)
+          k = i + (j - 1)*n1
+          c = k + e + a*n1
+          mc%lvl(c) = 0.5_wp*(ghost_from(c - e, c - 2*e, mirrors(k, k - e, k + e, merge(k, k - n1, j == lo2), &
+                                                                 merge(k, k + n1, j == hi2), lo1 == hi1)) &
+                              + ghost_from(c - a*n1, c - 2*a*n1, mirrors(k, k - a*n1, k + a*n1, merge(k, k - 1, i == lo1), &
+                                                                         merge(k, k + 1, i == hi1), lo2 == hi2)))
+        end do
+      end do
+    end subroutine ghost_ring
+
+    real(wp) function ghost(k, ki, kg, kt1, kt2, single)
+      !! The ring's fill beyond edge cell k (ki: the next cell inward, kg: the ring cell, kt1 and
+      !! kt2: the edge cells on either side of k along the edge).
+      integer(ik), intent(in) :: k, ki, kg, kt1, kt2
+      logical, intent(in) :: single
+      ghost = ghost_from(k, ki, mirrors(k, ki, kg, kt1, kt2, single))
+    end function ghost
+
+    real(wp) function ghost_from(k, ki, mirror)
+      !! The value beyond k: k's own (mirror) or extrapolated linearly from ki through k, in [0, 1].
+      integer(ik), intent(in) :: k, ki
+      logical, intent(in) :: mirror
+      if (mirror) then
+        ghost_from = mc%lvl(k)
+      else
+        ghost_from = min(1.0_wp, max(0.0_wp, 2.0_wp*mc%lvl(k) - mc%lvl(ki)))
+      end if
+    end function ghost_from
+
+    logical function mirrors(k, ki, kg, kt1, kt2, single)
+      !! Whether the ring cell kg beyond edge cell k takes k's own fill: beyond the edge of a single
+      !! row or column, or beyond a wall the water lies along (along_wall).
+      integer(ik), intent(in) :: k, ki, kg, kt1, kt2
+      logical, intent(in) :: single
+      mirrors = single
+      if (.not. mirrors) mirrors = mc%cell(kg) == CELL_SOLID
+      if (mirrors .and. .not. single) mirrors = along_wall(k, ki, kt1, kt2)
+    end function mirrors
+
+    pure logical function along_wall(ke, ki, kt1, kt2)
+      !! Whether the water next to a wall lies along it (its fill, mc%fill, changes more from the
+      !! edge cell ke to the cell ki inward than along the wall from kt1 to kt2, over two cells):
+      !! then the wall mirrors it, else (a surface meeting the wall) the fill continues straight.
+      !! Decided on the unsmoothed fill, so that both passes and an exchange of the axes agree.
+      integer(ik), intent(in) :: ke, ki, kt1, kt2
+      along_wall = abs(mc%fill(ke) - mc%fill(ki)) > 0.5_wp*abs(mc%fill(kt2) - mc%fill(kt1))
+    end function along_wall
+  end subroutine mac_level_set
+
+  pure real(wp) function fill_distance(f) result(d)
+    !! The d in [-LVL_MAX, LVL_MAX] with F(d) = f (mac_level_set's F, decreasing from 1 to 0):
+    !! bisection to round-off.
+    real(wp), intent(in) :: f
+    real(wp) :: lo, hi, mid
+    integer :: it
+    if (f >= 1.0_wp) then
+      d = -LVL_MAX
+      return
+    else if (f <= 0.0_wp) then
+      d = LVL_MAX
+      return
+    end if
+    lo = -LVL_MAX
+    hi = LVL_MAX
+    do it = 1, 60
+      mid = 0.5_wp*(lo + hi)
+      if (profile(mid) > f) then
+        lo = mid
+      else
+        hi = mid
+      end if
+    end do
+    d = 0.5_wp*(lo + hi)
+  contains
+    pure real(wp) function profile(x)
+      !! F(x) = sum_k b_k T(x + k), b the binomial weights of LVL_PASSES passes (k = -LVL_PASSES..LVL_PASSES).
+      real(wp), intent(in) :: x
+      real(wp) :: b(-LVL_PASSES:LVL_PASSES), bn(-LVL_PASSES:LVL_PASSES)
+      integer :: k, q
+      b = 0.0_wp
+      b(0) = 1.0_wp
+      do q = 1, LVL_PASSES
+        bn = 0.5_wp*b
+        bn(-LVL_PASSES + 1:) = bn(-LVL_PASSES + 1:) + 0.25_wp*b(:LVL_PASSES - 1)
+        bn(:LVL_PASSES - 1) = bn(:LVL_PASSES - 1) + 0.25_wp*b(-LVL_PASSES + 1:)
+        b = bn
+      end do
+      profile = 0.0_wp
+      do k = -LVL_PASSES, LVL_PASSES
+        profile = profile + b(k)*tent_cdf(x + real(k, wp))
+      end do
+    end function profile
+  end function fill_distance
+
+  pure real(wp) function tent_cdf(d)
+    !! Bilinear fill of a cell whose centre lies d cells above a flat water surface.
+    real(wp), intent(in) :: d
+    if (d >= 1.0_wp) then
+      tent_cdf = 0.0_wp
+    else if (d >= 0.0_wp) then
+      tent_cdf = 0.5_wp*(1.0_wp - d)**2
+    else if (d >= -1.0_wp) then
+      tent_cdf = 1.0_wp - 0.5_wp*(1.0_wp + d)**2
+    else
+      tent_cdf = 1.0_wp
+    end if
+  end function tent_cdf
+
   subroutine mac_clear_system(mc)
     !! Zero the pressure system (matrix, right-hand side, preconditioner) on the cells and their
     !! ghost ring, and the pressure outside the water; the assemblies fill it again.
@@ -275,7 +515,7 @@ contains
             if (a == 2) mc%ai(c) = -af(a)
             if (a == 4) mc%aj(c) = -af(a)
           case (CELL_AIR)
-            mc%adiag(c) = mc%adiag(c) + af(a)/surface_theta(mc, mc%fill(c), mc%fill(nb(a)))
+            mc%adiag(c) = mc%adiag(c) + af(a)/mac_theta(mc, c, nb(a))
           end select
         end do
         div = (mc%u(c + 1) - mc%u(c) + mc%v(c + n1) - mc%v(c))/mc%h
@@ -732,10 +972,10 @@ contains
         w = w - sa*(mc%p(cr) - mc%p(cl))
         val = FACE_WATER
       else if (tl == CELL_FLUID) then
-        w = w + sa*mc%p(cl)/surface_theta(mc, mc%fill(cl), mc%fill(cr))
+        w = w + sa*mc%p(cl)/mac_theta(mc, cl, cr)
         val = FACE_WATER
       else if (tr == CELL_FLUID) then
-        w = w - sa*mc%p(cr)/surface_theta(mc, mc%fill(cr), mc%fill(cl))
+        w = w - sa*mc%p(cr)/mac_theta(mc, cr, cl)
         val = FACE_WATER
       end if
     end subroutine face
@@ -839,7 +1079,7 @@ contains
         do a = 1, 4
           if (mc%cell(nb(a)) == CELL_FLUID) then
             cnt = cnt + 1
-            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/surface_theta(mc, mc%fill(nb(a)), mc%fill(c)))
+            sg = sg + mc%p(nb(a))*(1.0_wp - 1.0_wp/mac_theta(mc, nb(a), c))
           end if
         end do
         mc%pe(c) = 0.0_wp

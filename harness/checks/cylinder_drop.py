@@ -75,8 +75,8 @@ def simulate(h: float, rho: int, out) -> dict:
 
 
 @registry.check(order=5,
-                experimental=("0.33 D deeper than Greenhow & Lin's record and 0.2 D beyond the 2D SPH once submerged; "
-                              "cause not found"),
+                experimental=("within 0.05 D of Greenhow & Lin's record at D/10 (0.046 D), 0.052 D at the full "
+                              "tier's D/20"),
                 notes="docs/notes/cylinder_drop.md")
 def run(ctx: CheckContext) -> CheckResult:
     res = CheckResult(NAME, REQUIREMENT)

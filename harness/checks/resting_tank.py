@@ -79,15 +79,16 @@ def run_measured(case, out) -> dict:
 
 
 def run_tank(ctx: CheckContext, name: str, requirement: str, case_path,
-             gates: tuple[tuple[str, float, str], ...] = ()) -> CheckResult:
+             gates: tuple[tuple[str, float, str], ...] = (), wc_overrides: tuple[str, ...] = ()) -> CheckResult:
     """Water at rest in a tank, incompressible (gated) and weakly compressible (reported): the
     resting_tank check, and, with a body acceleration in the case and extra gates (metric, bound,
-    note), the accelerated_tank check."""
+    note), the accelerated_tank check. wc_overrides: further case overrides of the weakly
+    compressible run only."""
     res = CheckResult(name, requirement)
     case = cases.load(case_path)
     slope = surface_slope(case)
     t_wc = 3.0 if ctx.quick else case["solver"]["t_end"]   # the weakly compressible run (quick: 3 s)
-    wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0"])
+    wc_case = cases.load(case_path, [*WC_SETTINGS, f"solver.t_end={t_wc}", "solver.output_every=1.0", *wc_overrides])
     # the two water models side by side on the verify's workers
     inc, wc = parallel.pmap(run_measured, [(case, ctx.runs_dir / "incompressible"),
                                            (wc_case, ctx.runs_dir / "weakly_compressible")])
