@@ -236,7 +236,7 @@ contains
     integer(ik), intent(in) :: cw, ca
     real(wp) :: lw, la
     if (.not. mc%levelset) then
-      mac_theta = surface_theta(mc%fill(cw), mc%fill(ca))
+      mac_theta = surface_theta(mc, mc%fill(cw), mc%fill(ca))
       return
     end if
     lw = mc%lvl(cw)
