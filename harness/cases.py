@@ -142,6 +142,9 @@ SCHEMA: dict[str, Key] = {
                                   "(affine PIC; incompressible only)", choices=("flip", "apic"), default="flip"),
         "cg_tolerance": Key("float", "incompressible: relative residual of the pressure solve", default=1e-8,
                             check=in_range(0.0, 1.0, lo_open=True, hi_open=True)),
+        "correction_tolerance": Key("float", "incompressible, water alone: relative residual of the volume "
+                                             "correction's solve (coupled runs: cg_tolerance)", default=1e-4,
+                                    check=in_range(0.0, 1.0, lo_open=True, hi_open=True)),
         "cg_max_iterations": Key("int", "incompressible: CG iteration limit (0: 4 sqrt(cells) + 200)", default=0,
                                  check=nonneg),
         "volume_correction": Key("float", "incompressible: an over-filled cell gets div v = beta (fill - 1) / dt",

@@ -120,6 +120,7 @@ def build(case: Case, parts: ParticleSet | None = None) -> tuple[Simulation, Par
                     projection_stabilization=s["projection_stabilization"], fluid=s["fluid"],
                     transfer=s["transfer"], cg_tolerance=s["cg_tolerance"],
                     cg_max_iterations=s["cg_max_iterations"], volume_correction=s["volume_correction"],
+                    correction_tolerance=s["correction_tolerance"],
                     pressure_precond=s["pressure_precond"],
                     solid_substeps=s["solid_substeps"])
     if any(s["body_acceleration"]):

@@ -229,7 +229,7 @@ class Simulation:
                     flip: float = 1.0, lcrit: float = 0.49999, projection_stabilization: float = 0.0,
                     fluid: str = "weakly_compressible", transfer: str = "flip", cg_tolerance: float = 1e-8,
                     cg_max_iterations: int = 0, volume_correction: float = 0.5,
-                    pressure_precond: str = "mic0",
+                    correction_tolerance: float = 1e-4, pressure_precond: str = "mic0",
                     solid_substeps: str = "off") -> None:
         """Solver options; ``dt`` given means a fixed time step, otherwise ``cfl`` sets it.
         ``fluid`` picks the water model: the paper's explicit ``weakly_compressible`` one, or
@@ -261,7 +261,7 @@ class Simulation:
             raise CpdiError(1, "transfer = 'apic' is available with fluid = 'incompressible' only; "
                                "use transfer = 'flip' (with flip) for the weakly compressible model")
         for key, value in (("cg_tolerance", cg_tolerance), ("cg_max_iterations", cg_max_iterations),
-                           ("volume_correction", volume_correction)):
+                           ("volume_correction", volume_correction), ("correction_tolerance", correction_tolerance)):
             _call("cpdi_set_option", self._handle, key, float(value))
         self._shape = shape
         self._fluid = fluid

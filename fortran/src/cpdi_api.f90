@@ -656,7 +656,8 @@ contains
   subroutine cpdi_set_option(handle, name, value, ierr, msg)
     !! A solver option by name (options added after the positional iopt/ropt of
     !! cpdi_set_options): fluid (0 weakly compressible, 1 incompressible), transfer (0 flip,
-    !! 1 apic), cg_tolerance (relative residual), cg_max_iterations (0: automatic),
+    !! 1 apic), cg_tolerance (relative residual), correction_tolerance (relative residual of the volume
+    !! correction's solve, water alone), cg_max_iterations (0: automatic),
     !! volume_correction (beta of the divergence target beta (fill - 1) / dt), pressure_precond
     !! (the CG's preconditioner: 0 mic0, 1 multigrid), solid_substeps (deformable solids with the
     !! incompressible water: 0 off, the coupled step is their acoustic one; 1 explicit, their explicit
@@ -683,6 +684,9 @@ contains
       call set_flag(s%inc%transfer, 'transfer must be 0 (flip) or 1 (apic)')
     case ('cg_tolerance')
       call set_real(s%inc%tol, value > 0.0_wp .and. value < 1.0_wp, 'cg_tolerance must lie in (0, 1); 1e-8 is typical')
+    case ('correction_tolerance')
+      call set_real(s%inc%tol_corr, value > 0.0_wp .and. value < 1.0_wp, &
+                    'correction_tolerance must lie in (0, 1); 1e-4 is typical')
     case ('cg_max_iterations')
       if (.not. (value >= 0.0_wp .and. value < 1.0e9_wp) .or. value /= aint(value)) then
         call st%set(CPDI_ERR_INPUT, 'cg_max_iterations must be a whole number >= 0 (0: automatic)')
@@ -702,7 +706,8 @@ contains
       end if
     case default
       call st%set(CPDI_ERR_INPUT, 'unknown solver option '''//trim(name)//'''; use fluid, transfer, '// &
-                  'cg_tolerance, cg_max_iterations, volume_correction, pressure_precond or solid_substeps')
+                  'cg_tolerance, correction_tolerance, cg_max_iterations, volume_correction, pressure_precond or '// &
+                  'solid_substeps')
     end select
     if (st%ok()) s%smax = -1.0_wp
     call finish(st, ierr, msg)

@@ -39,8 +39,6 @@ module cpdi_incompressible
   integer(ik), parameter, public :: TRANSFER_FLIP = 0   !! FLIP/PIC blend (the run's flip fraction)
   integer(ik), parameter, public :: TRANSFER_APIC = 1   !! affine particle-in-cell
   integer(ik), parameter :: EXTRAPOLATION_LAYERS = 2
-  real(wp), parameter :: CORR_TOL = 1.0e-4_wp   !! the volume correction's CG relative residual for water alone, if
-                                                !! above the run's cg_tolerance (volume_correction: why it is enough)
   integer(ik), parameter, public :: COUPLING_MIXTURE = 0  !! solids and water one continuum on the faces
   integer(ik), parameter, public :: COUPLING_BATTY = 1    !! water-only pressure cells, solid boundary fluxes
   integer(ik), parameter, public :: SUBSTEPS_OFF = 0       !! solid_substeps = "off": the solids' acoustic step
@@ -55,6 +53,8 @@ module cpdi_incompressible
     integer(ik) :: transfer = TRANSFER_FLIP
     real(wp) :: beta = 0.5_wp          !! volume correction: target div v = beta (fill - 1) / dt
     real(wp) :: tol = 1.0e-8_wp        !! CG relative residual
+    real(wp) :: tol_corr = 1.0e-4_wp   !! the volume correction's CG relative residual, water alone (option
+                                       !! correction_tolerance; volume_correction: why it is enough)
     integer(ik) :: maxit = 0           !! CG iteration limit (0: 4 sqrt(cells) + 200)
     real(wp) :: rho = 0.0_wp           !! water density [kg/m^3]
     real(wp) :: visc = 0.0_wp          !! water viscosity [Pa s]
@@ -1117,7 +1117,7 @@ contains
     !! moves the particles apart again but is not added to their velocities, so a packing
     !! error is undone without a force on the flow (a divergence target inside the physical
     !! solve measured a dam-break front 0.08-0.25 T ahead, growing with beta).
-    !! Solved to a relative residual CORR_TOL (1e-4) rather than cg_tolerance: the field is the
+    !! Solved to a relative residual tol_corr (1e-4) rather than cg_tolerance: the field is the
     !! projection of an exact pressure gradient whatever the residual (curl-free, walls' normal
     !! velocity exact), only its divergence misses the target, by at most 1e-4 of the target's
     !! norm; the target itself undoes only beta of the packing error a step and is measured
@@ -1166,7 +1166,7 @@ contains
     if (ic%coupled) then   ! the solids' packing against the water: to the run's tolerance
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
     else
-      call mac_solve(ic%mc, max(ic%tol, CORR_TOL), ic%maxit, converged)
+      call mac_solve(ic%mc, ic%tol_corr, ic%maxit, converged)
     end if
     call toc(timers, 8, t0)
     diag(15) = real(ic%mc%iters, wp)
