@@ -15,7 +15,9 @@ module cpdi_incompressible
   !!
   !! Water particles keep F = I and their initial volume, and so their CPDI domains: the
   !! water is incompressible, and the grid velocity is divergence-free to the solver's
-  !! tolerance. The time step follows the flow (cpdi_step: h / (max|v| + sqrt(|g| h)) and the
+  !! tolerance. Axis-aligned rectangles then stay rectangles, whose CPDI1 weights are products of
+  !! 1D factors: water-only CPDI runs evaluate them inside P2G and G2P instead of storing them
+  !! (separable_rows, sep_axis). The time step follows the flow (cpdi_step: h / (max|v| + sqrt(|g| h)) and the
   !! viscous limit), not the speed of sound.
   use, intrinsic :: iso_fortran_env, only: int64
   use cpdi_kinds, only: wp, ik
