@@ -41,7 +41,7 @@ def dam_break(mirrored, t_end=0.2, packing=1.0):
     x = lattice((0.0, 0.0), (0.4, 0.6), D / packing)
     if mirrored:
         x[:, 0] = 1.0 - x[:, 0]
-    sim = water(x, np.zeros_like(x), (20, 16), SLIP_OPEN_TOP, cg_tolerance=1e-12)
+    sim = water(x, np.zeros_like(x), (20, 16), SLIP_OPEN_TOP, cg_tolerance=1e-12, correction_tolerance=1e-12)
     sim.advance(t_end)
     out = x, sim.state(), sim.diagnostics(), sim.grid_pressure()["pressure"]
     sim.close()
@@ -84,7 +84,8 @@ def test_flow_is_symmetric_under_exchanging_x_and_y():
     runs = []
     for swap in (False, True):
         p = [1, 0] if swap else [0, 1]
-        sim = water(x[:, p], v[:, p], (16, 16), walls, gravity=(0.0, 0.0), cg_tolerance=1e-13)
+        sim = water(x[:, p], v[:, p], (16, 16), walls, gravity=(0.0, 0.0), cg_tolerance=1e-13,
+                    correction_tolerance=1e-13)
         steps, _ = sim.advance(0.3)
         st, pres = sim.state(), sim.grid_pressure()["pressure"]
         sim.close()

@@ -84,6 +84,9 @@ module cpdi_options
              "(affine PIC; incompressible only)"), &
     optdef_t("cg_tolerance", OPT_REAL, 1, 1.0e-8_wp, 0.0_wp, 1.0_wp, .true., .true., CASE_DEFAULT, &
              "", "", "incompressible: relative residual of the pressure solve"), &
+    optdef_t("correction_tolerance", OPT_REAL, 1, 1.0e-4_wp, 0.0_wp, 1.0_wp, .true., .true., CASE_DEFAULT, &
+             "", "", "incompressible, water alone: relative residual of the volume correction's solve (coupled "// &
+             "runs use cg_tolerance)"), &
     optdef_t("cg_max_iterations", OPT_INT, 1, 0.0_wp, 0.0_wp, 1.0e9_wp, .false., .true., CASE_DEFAULT, &
              "", "", "incompressible: CG iteration limit (0: 4 sqrt(cells) + 200)"), &
     optdef_t("volume_correction", OPT_REAL, 1, 0.5_wp, 0.0_wp, 2.0_wp, .false., .false., CASE_DEFAULT, &

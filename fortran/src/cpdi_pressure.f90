@@ -99,6 +99,8 @@ module cpdi_pressure
     real(wp) :: defect = 0.0_wp              !! ||b's part in the null space||_2 / ||b||_2 of the last solve
     integer(ik), allocatable :: rgn(:)       !! per cell: its closed region (0: none)
     integer(ik), allocatable :: stk(:)       !! flood-fill stack
+    integer(ik), allocatable :: lev(:)       !! mac_extrapolate: each face's layer (work)
+    integer(ik), allocatable :: elo(:), ehi(:) !! mac_extrapolate: per lattice row, first and last water face (work)
     integer(ik), allocatable :: rlab(:)      !! per region found: its closed region or 0; then a closed region's top row
     integer(ik), allocatable :: rcnt(:)      !! per closed region: cells
     real(wp), allocatable :: rsum(:)         !! per closed region: a sum
@@ -123,8 +125,8 @@ contains
                                         mc%um, mc%vm, mc%u, mc%v, mc%uo, mc%vo, mc%uc, mc%vc, &
                                         mc%uval, mc%vval, mc%p, mc%pe, mc%b, mc%adiag, mc%ai, mc%aj, mc%pre, mc%r, mc%z, &
                                         mc%s, mc%q, mc%ua, mc%va, mc%rvx, mc%rvy, mc%rgn, mc%stk, mc%rlab, mc%rcnt, &
-                                        mc%rsum, mc%slo, mc%shi)
-    allocate (mc%slo(nn(2)), mc%shi(nn(2)), &
+                                        mc%rsum, mc%slo, mc%shi, mc%lev, mc%elo, mc%ehi)
+    allocate (mc%slo(nn(2)), mc%shi(nn(2)), mc%lev(n), mc%elo(nn(2)), mc%ehi(nn(2)), &
               mc%cell(n), mc%fill(n), mc%lvl(n), mc%lvt(n), &
               mc%um(n), mc%vm(n), mc%u(n), mc%v(n), mc%uo(n), mc%vo(n), mc%uc(n), mc%vc(n), mc%uval(n), &
               mc%vval(n), mc%p(n), mc%pe(n), mc%b(n), mc%adiag(n), mc%ai(n), mc%aj(n), mc%pre(n), mc%r(n), &
@@ -171,6 +173,9 @@ contains
     mc%rvy = 0.0_wp
     mc%rgn = 0
     mc%stk = 0
+    mc%lev = 0
+    mc%elo = 0
+    mc%ehi = 0
     mc%rlab = 0
     mc%rcnt = 0
     mc%rsum = 0.0_wp
@@ -988,37 +993,69 @@ contains
     !! Walls' faces (FACE_WALL) keep their normal velocity and are no source: an air face between
     !! the water and a wall carries the water's velocity, not a mean with the wall's (Bridson 2015,
     !! ch. 4); mac_constrain then imposes the solids' normal velocity inside them. val is left as
-    !! it was (one marking serves several fields).
-    type(mac_t), intent(in) :: mc
+    !! it was (one marking serves several fields). A face of layer l lies within l faces of a
+    !! water face, so each lattice row is swept only between its rows' first and last water face
+    !! (the `layers` rows either side), widened by `layers`: the same result as the whole lattice.
+    !! mc's work arrays lev, elo, ehi are used (w is never one of them).
+    type(mac_t), intent(inout) :: mc
     real(wp), intent(inout) :: w(:)
     integer(ik), intent(in) :: val(:)
     integer(ik), intent(in) :: layers
-    integer(ik) :: i, j, k, n1, l, nb(4), a, cnt, lev(size(val))
+    integer(ik) :: i, j, k, n1, n2, l, nb(4), a, cnt, i0, i1, jj
     real(wp) :: sw
     n1 = mc%nn(1)
-    lev = val
-    do l = 1, layers
-      do j = 2, mc%nn(2) - 1
-        do i = 2, n1 - 1
-          k = i + (j - 1)*n1
-          if (lev(k) /= 0) cycle
-          nb = [k - 1, k + 1, k - n1, k + n1]
-          cnt = 0
-          sw = 0.0_wp
-          do a = 1, 4
-            if (lev(nb(a)) >= 1 .and. lev(nb(a)) <= l) then
-              cnt = cnt + 1
-              sw = sw + w(nb(a))
-            end if
-          end do
-          if (cnt > 0) then
-            w(k) = sw/real(cnt, wp)
-            lev(k) = l + 1
+    n2 = mc%nn(2)
+    associate (lev => mc%lev, elo => mc%elo, ehi => mc%ehi)
+      do k = 1, size(val)
+        lev(k) = val(k)
+      end do
+      do j = 1, n2
+        elo(j) = n1 + 1
+        ehi(j) = 0
+        do i = 1, n1
+          if (val(i + (j - 1)*n1) == FACE_WATER) then
+            elo(j) = i
+            exit
+          end if
+        end do
+        do i = n1, elo(j), -1
+          if (val(i + (j - 1)*n1) == FACE_WATER) then
+            ehi(j) = i
+            exit
           end if
         end do
       end do
-    end do
-    where (lev == 0) w = 0.0_wp
+      do l = 1, layers
+        do j = 2, n2 - 1
+          i0 = n1 + 1
+          i1 = 0
+          do jj = max(1, j - layers), min(n2, j + layers)
+            i0 = min(i0, elo(jj))
+            i1 = max(i1, ehi(jj))
+          end do
+          do i = max(2, i0 - layers), min(n1 - 1, i1 + layers)
+            k = i + (j - 1)*n1
+            if (lev(k) /= 0) cycle
+            nb = [k - 1, k + 1, k - n1, k + n1]
+            cnt = 0
+            sw = 0.0_wp
+            do a = 1, 4
+              if (lev(nb(a)) >= 1 .and. lev(nb(a)) <= l) then
+                cnt = cnt + 1
+                sw = sw + w(nb(a))
+              end if
+            end do
+            if (cnt > 0) then
+              w(k) = sw/real(cnt, wp)
+              lev(k) = l + 1
+            end if
+          end do
+        end do
+      end do
+      do k = 1, size(val)
+        if (lev(k) == 0) w(k) = 0.0_wp
+      end do
+    end associate
   end subroutine mac_extrapolate
 
   subroutine mac_constrain(mc, u, v, still)
