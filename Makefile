@@ -9,7 +9,7 @@ PY     := $(VENV)/bin/python
 BUILD  := build
 DEBUG_BUILD := build-debug
 EXT_SRC := $(wildcard fortran/src/*.f90) fortran/cpdi.pyf meson.build fortran/meson.build meson.options \
-           fortran/fflags.txt.in $(wildcard fortran/tests/*.f90)
+           fortran/fflags.txt.in $(wildcard fortran/tests/*.f90 fortran/tests/*.pyf fortran/bench/*)
 EXT_STAMP := harness/.ext-built
 APT_PKGS := gfortran liblapack-dev libhdf5-dev pkg-config
 CASE ?= cases/water_column.toml
@@ -65,10 +65,13 @@ $(EXT_STAMP): $(VENV)/.installed $(EXT_SRC)
 	@# top-level meson.build) has no build/fortran/ and is set up again
 	@test -d $(BUILD)/fortran || rm -rf $(BUILD)
 	@test -f $(BUILD)/build.ninja || PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson setup $(BUILD) . --python.install-env=auto -Dpython.bytecompile=-1 >/dev/null
-	@echo "build: compiling the Fortran core and the f2py extension (log: $(BUILD)/compile.log)"
+	@echo "build: compiling the Fortran core and the f2py extensions (log: $(BUILD)/compile.log)"
 	@PATH=$(CURDIR)/$(VENV)/bin:$$PATH $(VENV)/bin/meson compile -C $(BUILD) > $(BUILD)/compile.log 2>&1 || \
 	  { cat $(BUILD)/compile.log; echo "error: the Fortran build failed; the compiler output is above"; exit 1; }
-	@rm -f harness/_cpdi*.so && cp $(BUILD)/fortran/_cpdi*.so harness/
+	@# the solver's extension into harness/; the tests' and the bench's (never installed) into tests/ and tools/
+	@rm -f harness/_cpdi*.so tests/_cpdi_test*.so tools/_cpdi_bench*.so
+	@cp $(BUILD)/fortran/_cpdi.*.so harness/ && cp $(BUILD)/fortran/_cpdi_test.*.so tests/ && \
+	  cp $(BUILD)/fortran/_cpdi_bench.*.so tools/
 	@touch $@
 
 build: $(EXT_STAMP)
@@ -118,7 +121,7 @@ lint: venv
 	@$(VENV)/bin/ruff check harness tests tools
 
 clean:
-	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so $(EXT_STAMP) runs .bench-base
+	rm -rf $(BUILD) $(DEBUG_BUILD) harness/_cpdi*.so tests/_cpdi_test*.so tools/_cpdi_bench*.so $(EXT_STAMP) runs .bench-base
 
 distclean: clean
 	rm -rf $(VENV) reports/2* reports/latest reports/bench

@@ -37,52 +37,79 @@ class CpdiError(RuntimeError):
         return type(self), (self.code, str(self), self.routine)
 
 
-def _load_extension():
-    """Import the extension with the OpenMP defaults in the environment (libgomp reads them as it
-    loads), then give the caller's environment back unchanged."""
-    from harness import openmp_defaults
+class Extension:
+    """One f2py extension of the Fortran core: `name` (a dotted module path) whose routines live in
+    its Fortran module `fortran_module`. The solver's is harness._cpdi (cpdi_api, the production
+    API); the tests' tests._cpdi_test and the bench's tools._cpdi_bench are built from the same core
+    by make build and never installed (docs/design.md). Loaded on first use."""
 
-    added = openmp_defaults(os.environ)
-    os.environ.update(added)
-    try:
-        return importlib.import_module("harness._cpdi").cpdi_api
-    except ImportError as exc:  # pragma: no cover - exercised only without a build
-        raise ImportError(
-            "the Fortran extension harness/_cpdi*.so is not built; run `make build` (or `make test`)"
-        ) from exc
-    finally:
-        for k in added:
-            os.environ.pop(k, None)
+    def __init__(self, name: str, fortran_module: str, build_hint: str):
+        self.name = name
+        self.fortran_module = fortran_module
+        self.build_hint = build_hint   # the file make build puts in place, for the error without it
+        self._module = None
+
+    def _load(self):
+        """Import the extension with the OpenMP defaults in the environment (libgomp reads them as it
+        loads), then give the caller's environment back unchanged."""
+        from harness import openmp_defaults
+
+        added = openmp_defaults(os.environ)
+        os.environ.update(added)
+        try:
+            return importlib.import_module(self.name)
+        except ImportError as exc:  # pragma: no cover - exercised only without a build
+            raise ImportError(f"the Fortran extension {self.build_hint} is not built; run `make build` "
+                              "(or `make test`)") from exc
+        finally:
+            for k in added:
+                os.environ.pop(k, None)
+
+    def extension(self):
+        """The f2py extension module itself."""
+        if self._module is None:
+            self._module = self._load()
+        return self._module
+
+    def api(self):
+        """The f2py object of the Fortran module (its routines are its attributes)."""
+        return getattr(self.extension(), self.fortran_module)
+
+    def error(self):
+        """The exception class f2py raises for failed argument checks (`_<name>_error`)."""
+        return getattr(self.extension(), f"_{self.name.rsplit('.', 1)[-1]}_error")
+
+    def call(self, name: str, *args):
+        """Call routine `name`; its trailing (ierr, msg) become a CpdiError, f2py's own argument
+        checks an input CpdiError; the other outputs are returned (one alone, several as a tuple)."""
+        try:
+            out = getattr(self.api(), name)(*args)
+        except (ValueError, TypeError, OverflowError, self.error()) as exc:  # f2py's own argument checks
+            raise CpdiError(1, f"{name}: invalid arguments ({exc}); check shapes, types and counts") from None
+        *values, ierr, msg = out
+        if ierr != 0:
+            text = msg.decode("ascii", "replace").strip() if isinstance(msg, bytes) else str(msg).strip()
+            raise CpdiError(ierr, text or f"{name} failed with code {ierr}", name)
+        if len(values) == 1:
+            return values[0]
+        return tuple(values)
 
 
-_API = None
+SOLVER = Extension("harness._cpdi", "cpdi_api", "harness/_cpdi*.so")
 
 
 def api_error():
     """The exception class f2py raises for failed argument checks."""
-    return importlib.import_module("harness._cpdi").__cpdi_error
+    return SOLVER.error()
 
 
 def api():
     """The f2py module object (loaded on first use)."""
-    global _API
-    if _API is None:
-        _API = _load_extension()
-    return _API
+    return SOLVER.api()
 
 
 def _call(name: str, *args):
-    try:
-        out = getattr(api(), name)(*args)
-    except (ValueError, TypeError, OverflowError, api_error()) as exc:  # f2py's own argument checks
-        raise CpdiError(1, f"{name}: invalid arguments ({exc}); check shapes, types and counts") from None
-    *values, ierr, msg = out
-    if ierr != 0:
-        text = msg.decode("ascii", "replace").strip() if isinstance(msg, bytes) else str(msg).strip()
-        raise CpdiError(ierr, text or f"{name} failed with code {ierr}", name)
-    if len(values) == 1:
-        return values[0]
-    return tuple(values)
+    return SOLVER.call(name, *args)
 
 
 def _f64(a, shape: tuple[int, ...] | None = None, what: str = "array") -> np.ndarray:
@@ -506,16 +533,6 @@ def threads(n: int = 0) -> int:
     if not isinstance(n, int) or n < 0:
         raise CpdiError(1, f"threads must be a whole number >= 0 (0 asks), got {n!r}")
     return int(_call("cpdi_threads", n))
-
-
-def core_round_trip(iters: int = 20000) -> float:
-    """Mean wall time [ns] of one round trip of a cache line between two OpenMP threads of this
-    process (over iters trips): what moving data between the team's cores costs now. A control
-    of make bench. It always runs on 2 threads, whatever threads() says, and raises CpdiError where
-    OpenMP cannot start them (a build without OpenMP, OMP_THREAD_LIMIT=1)."""
-    if not isinstance(iters, int) or iters < 1:
-        raise CpdiError(1, f"iters must be a whole number >= 1, got {iters!r}")
-    return float(_call("cpdi_core_round_trip", iters))
 
 
 def log_strain(F, method: str = "closed") -> np.ndarray:

@@ -154,25 +154,26 @@ def test_the_real_control_loop_runs(monkeypatch):
 def test_the_real_round_trip_probe_runs():
     # smoke test: two threads of this process bounce a cache line; a broken hand-over would hang
     # until the probe's 5 s timeout and raise
-    from harness import solver
+    from tools import host_probe
     # (no two cores hand a line back and forth in under 1 ns; 0.1 s a trip allows for a busy machine)
-    ns = solver.core_round_trip(500)
+    ns = host_probe.core_round_trip(500)
     assert math.isfinite(ns) and 1.0 < ns < 1.0e8
 
 
 def test_the_round_trip_probe_refuses_a_bad_count():
-    from harness import solver
-    with pytest.raises(solver.CpdiError, match="iters"):
-        solver.core_round_trip(0)
-    assert math.isfinite(solver.core_round_trip(1))   # one round trip is a measurement
+    from harness.solver import CpdiError
+    from tools import host_probe
+    with pytest.raises(CpdiError, match="iters"):
+        host_probe.core_round_trip(0)
+    assert math.isfinite(host_probe.core_round_trip(1))   # one round trip is a measurement
 
 
 def test_the_round_trip_probe_refuses_one_thread_at_once():
     """Under OMP_THREAD_LIMIT=1 the probe has no partner thread: it says so at once, and does not
     first wait out its 5 s partner timeout (the lone thread must not bounce)."""
-    code = ("import time; from harness import solver\n"
+    code = ("import time; from harness.solver import CpdiError; from tools import host_probe\n"
             "t = time.perf_counter()\n"
-            "try:\n    solver.core_round_trip(100)\nexcept solver.CpdiError as e:\n"
+            "try:\n    host_probe.core_round_trip(100)\nexcept CpdiError as e:\n"
             "    print(round(time.perf_counter() - t, 3), e)\n")
     env = {**os.environ, "OMP_THREAD_LIMIT": "1"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60,

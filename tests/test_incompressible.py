@@ -1,5 +1,5 @@
 """Physics of the incompressible water model: the MAC pressure operator and projection
-(cpdi_pressure through the test entry points cpdi_poisson_apply / cpdi_poisson_project), the
+(cpdi_pressure through the test hooks cpdi_poisson_apply / cpdi_poisson_project of tests/_cpdi_test), the
 APIC face transfer, and a resting tank stepped through Simulation.advance.
 
 Test grids are nx x ny cells held as numpy arrays of shape (nx, ny) (index [i, j], x along
@@ -13,7 +13,8 @@ import re
 import numpy as np
 import pytest
 
-from harness.solver import CpdiError, Simulation, _call
+from harness.solver import CpdiError, Simulation
+from tests import fortran_hooks
 
 AIR, WATER, WALL = 0, 1, 2
 
@@ -26,7 +27,7 @@ def flat(a, dtype=np.float64):
 def apply_op(cell, fill, x):
     """y = A x (h = 1) on the test grid, as an (nx, ny) array."""
     nx, ny = cell.shape
-    y = _call("cpdi_poisson_apply", nx, ny, flat(cell, np.int32), flat(fill), flat(x))
+    y = fortran_hooks.call("cpdi_poisson_apply", nx, ny, flat(cell, np.int32), flat(fill), flat(x))
     return y.reshape((nx, ny), order="F")
 
 
@@ -37,7 +38,7 @@ def project(cell, fill, u, v, *, dt, rho, h, beta=0.0, tol=1e-12, maxit=1000, pr
     """Solve and project on a test grid: (p, uo, vo, iters, resid), and with closed also the
     closed water regions' null-space defect of the right-hand side and their count."""
     nx, ny = cell.shape
-    p, uo, vo, iters, resid, defect, nclosed = _call(
+    p, uo, vo, iters, resid, defect, nclosed = fortran_hooks.call(
         "cpdi_poisson_project", nx, ny, flat(cell, np.int32), flat(fill), flat(u), flat(v), float(dt), float(rho),
         float(h), float(beta), float(tol), int(maxit), PRECONDS[precond])
     shp = (nx, ny)
@@ -765,5 +766,5 @@ def test_the_test_grid_refuses_a_missing_interior_or_cell_size(nx, ny, h):
     cell = np.full((nx, ny), WALL, dtype=np.int32)
     zeros = np.zeros((nx, ny))
     with pytest.raises(CpdiError, match=r"nx, ny >= 3 and h > 0|\(nx >= 3\) failed|\(ny >= 3\) failed"):
-        _call("cpdi_poisson_project", nx, ny, flat(cell, np.int32), flat(zeros), flat(zeros), flat(zeros),
-              0.01, 1000.0, float(h), 0.0, 1e-12, 100)
+        fortran_hooks.call("cpdi_poisson_project", nx, ny, flat(cell, np.int32), flat(zeros), flat(zeros),
+                           flat(zeros), 0.01, 1000.0, float(h), 0.0, 1e-12, 100)

@@ -1,5 +1,5 @@
 """The multigrid preconditioner of the pressure CG (fortran/src/cpdi_multigrid.f90), through the
-test entry points cpdi_poisson_precond (z = M^-1 r) and cpdi_poisson_project (the solve).
+test hooks cpdi_poisson_precond (z = M^-1 r) and cpdi_poisson_project (the solve) of tests/_cpdi_test.
 
 The CG needs M^-1 symmetric positive definite; a preconditioner worth its cost keeps the
 iterations flat as h falls, where MIC(0)'s grow like sqrt(cells); and it must not change the
@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from harness import solver
-from harness.solver import CpdiError, _call
+from harness.solver import CpdiError
+from tests import fortran_hooks
 from tests.test_incompressible import (
     AIR,
     PRECONDS,
@@ -29,7 +30,7 @@ from tests.test_incompressible import (
 
 def precond(cell, fill, r, kind="multigrid"):
     nx, ny = cell.shape
-    z = _call("cpdi_poisson_precond", nx, ny, flat(cell, np.int32), flat(fill), PRECONDS[kind], flat(r))
+    z = fortran_hooks.call("cpdi_poisson_precond", nx, ny, flat(cell, np.int32), flat(fill), PRECONDS[kind], flat(r))
     return z.reshape((nx, ny), order="F")
 
 
@@ -203,8 +204,8 @@ def test_multigrid_run_is_bitwise_independent_of_the_thread_count():
 def test_an_unknown_preconditioner_is_refused():
     cell = tank(6, 6)
     with pytest.raises(CpdiError, match="precond must be 0"):
-        _call("cpdi_poisson_precond", 6, 6, flat(cell, np.int32), flat(np.ones(cell.shape)), 2,
-              flat(np.ones(cell.shape)))
+        fortran_hooks.call("cpdi_poisson_precond", 6, 6, flat(cell, np.int32), flat(np.ones(cell.shape)), 2,
+                           flat(np.ones(cell.shape)))
     sim = solver.Simulation()
     with pytest.raises(CpdiError, match="pressure_precond"):
         sim.set_options(fluid="incompressible", pressure_precond="amg")

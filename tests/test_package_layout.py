@@ -44,6 +44,25 @@ def test_developer_tools_are_not_in_the_installed_package() -> None:
     assert "install_subdir('tools'" not in (REPO / "meson.build").read_text()
 
 
+def test_the_test_and_bench_extensions_are_built_but_never_installed() -> None:
+    """One meson project builds three extensions from the one core: the solver's _cpdi (installed),
+    the tests' _cpdi_test and the bench's _cpdi_bench (install : false; make build copies them into
+    tests/ and tools/). meson-python installs what the build's install plan lists, and that is the
+    solver's extension, its flags file and the three data trees, nothing of tests/ or tools/."""
+    build = REPO / "build"
+    plan = json.loads((build / "meson-info" / "intro-install_plan.json").read_text())
+    suffix = next((build / "fortran").glob("_cpdi.*.so")).name.removeprefix("_cpdi")
+    assert [t["destination"] for t in plan["targets"].values()] == ["{py_platlib}/harness/_cpdi" + suffix]
+    assert {Path(src).name for src in plan["install_subdirs"]} == {"harness", "cases", "reference"}
+    every = [d["destination"] for part in plan.values() for d in part.values()]
+    assert not [d for d in every if "_cpdi_test" in d or "_cpdi_bench" in d or "/tests" in d or "/tools" in d]
+    # built by the same project and in place for the tests and the bench
+    for name, home in (("_cpdi_test", "tests"), ("_cpdi_bench", "tools")):
+        assert (build / "fortran" / (name + suffix)).is_file(), name
+        assert (REPO / home / (name + suffix)).is_file(), f"make build copies {name} into {home}/"
+    assert not list((REPO / "harness").glob("_cpdi_*.so")), "only the solver's extension belongs in harness/"
+
+
 # every module of the package imported, then the extension loaded as the harness loads it; prints
 # whether os.environ was the same after each, the solver's threads and the cores this process may use
 _IMPORT_ALL = """

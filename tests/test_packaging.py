@@ -55,6 +55,8 @@ def test_pip_install_then_cpdi_verify_quick(tmp_path: Path) -> None:
                 "_data/cases/water_column.toml", "_data/fflags.txt"):
         assert (pkg / rel).is_file(), rel
     assert len(list(pkg.glob("_cpdi*.so"))) == 1
+    # the tests' and the bench's extensions (install : false) are nowhere in the environment
+    assert not [f for f in pkg.parent.rglob("_cpdi_*") if f.name.startswith(("_cpdi_test", "_cpdi_bench"))]
     # runtime only: no developer tool in the package, no test or developer dependency in the venv
     assert not (pkg / "mutation").exists() and not list(pkg.glob("bench*.py"))
     p = _run([str(venv / "bin" / "python"), "-c", "import importlib.util as u; "

@@ -177,11 +177,12 @@ def core_control() -> float:
 def round_trip_control() -> float:
     """What moving a cache line between the two cores costs now [ns]: the median of
     ROUND_TRIP_BURSTS bursts of ROUND_TRIP_ITERS round trips between two threads of a fresh
-    process (solver.core_round_trip). It costs several times more in the stretches in which the
-    host puts its two vCPUs apart, where the 2-thread step pays for every line its phases hand
-    from one core to the other (the figures: docs/notes/threads.md)."""
-    code = ("import json, statistics; from harness import solver; "
-            f"print(json.dumps({{'ns': statistics.median(solver.core_round_trip({ROUND_TRIP_ITERS}) "
+    process (host_probe.core_round_trip, through tools' own extension _cpdi_bench). It costs
+    several times more in the stretches in which the host puts its two vCPUs apart, where the
+    2-thread step pays for every line its phases hand from one core to the other (the figures:
+    docs/notes/threads.md)."""
+    code = ("import json, statistics; from tools import host_probe; "
+            f"print(json.dumps({{'ns': statistics.median(host_probe.core_round_trip({ROUND_TRIP_ITERS}) "
             f"for _ in range({ROUND_TRIP_BURSTS}))}}))")
     p = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -1,16 +1,18 @@
-!> Flat, f2py-facing API. The only module Python sees.
+!> Flat, f2py-facing API: the production interface of the extension _cpdi (harness.solver).
 module cpdi_api
   !! Every routine takes explicit-shape `real(c_double)` / `integer(c_int)` arrays and
   !! returns `ierr` (0 = success, otherwise a CPDI_ERR_* code) and a message naming the
   !! problem and the fix. Simulations live in a registry addressed by integer handles,
   !! so several can coexist in one Python process. Nothing here stops the process.
+  !! Production only: the tests' stand-alone pressure-operator hooks are in the extension
+  !! _cpdi_test (fortran/tests/cpdi_test_hooks.f90) and the bench's core round-trip probe in
+  !! _cpdi_bench (fortran/bench/cpdi_bench_probe.f90); neither is installed (docs/design.md).
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp, ik
   use cpdi_slots, only: DIAG_MASS, NPSTATE, NSSTATE, ROW_X, ROW_V, ROW_F, ROW_L, ROW_SIG, ROW_R, ROW_BF, ROW_VOL, &
                         ROW_PSI, ROW_JBAR, ROW_AW, NROWFIELD, ROW_NAMES, ROW_FIRST, SCAL_T, SCAL_STEPS, SCAL_SMAX, &
                         SCAL_VISC_DT, SCAL_DT_LAST, NSCALAR, SCALAR_NAMES, DIAG_NAMES, TIMER_NAMES, SLOT_NAME_LEN
-  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, &
-                         CPDI_ERR_LAPACK, CPDI_ERR_SOLVE_CODE => CPDI_ERR_SOLVE
+  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, CPDI_ERR_LAPACK
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
   use cpdi_shape, only: shape_count, shape_slot
@@ -22,8 +24,7 @@ module cpdi_api
   use cpdi_motion, only: vtable_set
   use cpdi_step, only: sim_prepare, sim_step, sim_stable_dt, sim_check_inside, sim_release
   use cpdi_incompressible, only: incomp_transfer_cycle, FLUID_INCOMPRESSIBLE
-  use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
-                           CELL_SOLID, mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
+  use cpdi_pressure, only: CELL_FLUID, CELL_SOLID
   implicit none
   private
 
@@ -37,13 +38,12 @@ module cpdi_api
   public :: cpdi_new, cpdi_free, cpdi_set_grid, cpdi_set_materials, cpdi_set_particles, &
             cpdi_set_body_force, cpdi_advance, cpdi_get_state, cpdi_get_diag, &
             cpdi_get_timers, cpdi_get_shape, cpdi_grid_info, cpdi_log_strain, cpdi_stable_dt, &
-            cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads, cpdi_core_round_trip
-  ! Incompressible water (issue 20): named options, the grid pressure, and test entry points.
+            cpdi_set_state, cpdi_project, cpdi_set_bodies, cpdi_threads
+  ! Incompressible water (issue 20): named options, the grid pressure, the face lattices.
   public :: cpdi_solid_force, cpdi_face_velocity, cpdi_rigid_bodies
   ! Water entry (issue 40): velocity tables of prescribed rigid bodies, the water's load per particle.
   public :: cpdi_set_velocity_table, cpdi_water_loads
-  public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_poisson_apply, cpdi_poisson_project
-  public :: cpdi_poisson_precond, cpdi_pressure_stats
+  public :: cpdi_set_option, cpdi_grid_pressure, cpdi_transfer_cycle, cpdi_pressure_stats
   ! Every option by name through one table (issue 39 item 1).
   public :: cpdi_check_options, cpdi_option_count, cpdi_option_info
   ! The names of the diagnostics, timers and full-state rows (cpdi_slots).
@@ -422,19 +422,6 @@ contains
     !$ nused = omp_get_max_threads()
     call finish(st, ierr, msg)
   end subroutine cpdi_threads
-
-  subroutine cpdi_core_round_trip(iters, ns, ierr, msg)
-    !! Mean wall time [ns] of one cache-line round trip between two OpenMP threads, over
-    !! iters round trips (a control of make bench; cpdi_core_latency). Runs on 2 threads.
-    use cpdi_core_latency, only: core_round_trip
-    integer(c_int), intent(in) :: iters
-    real(c_double), intent(out) :: ns
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    call core_round_trip(int(iters, ik), ns, st)
-    call finish(st, ierr, msg)
-  end subroutine cpdi_core_round_trip
 
   subroutine cpdi_get_state(handle, n, x, v, F, sig, vol, r, ierr, msg)
     !! Copy out particle positions, velocities, F (4,n), Cauchy stress (4,n)
@@ -829,73 +816,6 @@ contains
     call finish(st, ierr, msg)
   end subroutine cpdi_transfer_cycle
 
-  subroutine test_mac(mc, nx, ny, cell, fill, h, st)
-    !! A stand-alone staggered grid of nx x ny cells whose outer ring is boundary (its
-    !! kinds given in cell); for the tests of the pressure operator and projection.
-    type(mac_t), intent(inout) :: mc
-    integer(c_int), intent(in) :: nx, ny
-    integer(c_int), intent(in) :: cell(nx*ny)
-    real(c_double), intent(in) :: fill(nx*ny), h
-    type(status_t), intent(inout) :: st
-    if (nx < 3 .or. ny < 3 .or. .not. (h > 0.0_wp)) then
-      call st%set(CPDI_ERR_INPUT, 'the test grid needs nx, ny >= 3 and h > 0')
-      return
-    end if
-    if (any(cell < 0) .or. any(cell > 2)) then
-      call st%set(CPDI_ERR_INPUT, 'cell kinds are 0 (air), 1 (water), 2 (wall)')
-      return
-    end if
-    call mac_alloc(mc, [nx, ny], [2, 2], [nx - 1, ny - 1], h, st)
-    if (.not. st%ok()) return
-    mc%cell = cell
-    mc%fill = fill
-  end subroutine test_mac
-
-  subroutine cpdi_poisson_apply(nx, ny, cell, fill, x, y, ierr, msg)
-    !! y = A x: the pressure operator (5-point, ghost-fluid surface) on a test grid (h = 1).
-    integer(c_int), intent(in) :: nx, ny
-    integer(c_int), intent(in) :: cell(nx*ny)
-    real(c_double), intent(in) :: fill(nx*ny), x(nx*ny)
-    real(c_double), intent(out) :: y(nx*ny)
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    type(mac_t) :: mc
-    y = 0.0_wp
-    call test_mac(mc, nx, ny, cell, fill, 1.0_wp, st)
-    if (st%ok()) then
-      call mac_assemble(mc, 1.0_wp, 1.0_wp, 0.0_wp)
-      call mac_apply(mc, x, y)
-    end if
-    call finish(st, ierr, msg)
-  end subroutine cpdi_poisson_apply
-
-  subroutine cpdi_poisson_precond(nx, ny, cell, fill, precond, r, z, ierr, msg)
-    !! z = M^-1 r: the CG's preconditioner precond (0 mic0, 1 multigrid) for the pressure operator
-    !! of a test grid (h = 1, as cpdi_poisson_apply), on its water cells (0 elsewhere).
-    integer(c_int), intent(in) :: nx, ny, precond
-    integer(c_int), intent(in) :: cell(nx*ny)
-    real(c_double), intent(in) :: fill(nx*ny), r(nx*ny)
-    real(c_double), intent(out) :: z(nx*ny)
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    type(mac_t) :: mc
-    z = 0.0_wp
-    if (precond /= PRECOND_MIC0 .and. precond /= PRECOND_MULTIGRID) &
-      call st%set(CPDI_ERR_INPUT, 'precond must be 0 (mic0) or 1 (multigrid)')
-    if (st%ok()) call test_mac(mc, nx, ny, cell, fill, 1.0_wp, st)
-    if (st%ok()) then
-      mc%precond = precond
-      call mac_assemble(mc, 1.0_wp, 1.0_wp, 0.0_wp)
-      mc%r = 0.0_wp
-      where (mc%cell == CELL_FLUID) mc%r = r
-      call mac_precondition(mc, .true.)
-      z = mc%z
-    end if
-    call finish(st, ierr, msg)
-  end subroutine cpdi_poisson_precond
-
   subroutine cpdi_pressure_stats(handle, stats, ierr, msg)
     !! The last pressure solve of an incompressible run: [CG iterations, relative residual,
     !! closed-water defect of the right-hand side, closed water regions, preconditioner (0 mic0,
@@ -912,58 +832,6 @@ contains
                           real(s%inc%mc%precond, wp)]
     call finish(st, ierr, msg)
   end subroutine cpdi_pressure_stats
-
-  subroutine cpdi_poisson_project(nx, ny, cell, fill, u, v, dt, rho, h, beta, tol, maxit, precond, p, uo, vo, &
-                                  iters, resid, defect, nclosed, ierr, msg)
-    !! Project the face field (u, v) of a test grid: solve for p with the preconditioner precond
-    !! (0 mic0, 1 multigrid), return the projected faces uo, vo (unchanged where no water is
-    !! adjacent), CG iterations and residual, and the closed water regions' null-space defect
-    !! of the right-hand side and their count (cpdi_pressure).
-    integer(c_int), intent(in) :: nx, ny, maxit, precond
-    integer(c_int), intent(in) :: cell(nx*ny)
-    real(c_double), intent(in) :: fill(nx*ny), u(nx*ny), v(nx*ny), dt, rho, h, beta, tol
-    real(c_double), intent(out) :: p(nx*ny), uo(nx*ny), vo(nx*ny), resid, defect
-    integer(c_int), intent(out) :: iters, nclosed
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    type(status_t) :: st
-    type(mac_t) :: mc
-    logical :: converged
-    character(len=200) :: buf
-    p = 0.0_wp
-    uo = u
-    vo = v
-    iters = 0
-    resid = 0.0_wp
-    defect = 0.0_wp
-    nclosed = 0
-    if (precond /= PRECOND_MIC0 .and. precond /= PRECOND_MULTIGRID) &
-      call st%set(CPDI_ERR_INPUT, 'precond must be 0 (mic0) or 1 (multigrid)')
-    if (st%ok()) call test_mac(mc, nx, ny, cell, fill, h, st)
-    if (st%ok()) then
-      mc%precond = precond
-      mc%u = u
-      mc%v = v
-      call mac_walls(mc)
-      call mac_assemble(mc, dt, rho, beta)
-      call mac_solve(mc, tol, maxit, converged)
-      iters = mc%iters
-      resid = mc%resid
-      defect = mc%defect
-      nclosed = mc%nfloat
-      if (.not. converged) then
-        write (buf, '(a,es10.3,a,i0,a)') 'the pressure solve did not converge (relative residual ', mc%resid, &
-          ' after ', mc%iters, ' CG iterations); raise maxit or tol'
-        call st%set(CPDI_ERR_SOLVE_CODE, trim(buf))
-      else
-        call mac_project(mc, dt, rho)
-        p = mc%p
-        uo = mc%u
-        vo = mc%v
-      end if
-    end if
-    call finish(st, ierr, msg)
-  end subroutine cpdi_poisson_project
 
   subroutine cpdi_grid_info(handle, info, ierr, msg)
     !! info = [x of node (1,1), y of node (1,1), h, nodes in x, nodes in y, pad]

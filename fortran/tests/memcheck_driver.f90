@@ -1,11 +1,12 @@
 !> Fortran-only driver for `make memcheck`: a small water column with an elastic block in
 !> contact and the projection on, through the same API Python uses, plus the error paths; the
 !> same water column incompressible, with its face-velocity and cell-pressure queries; the block
-!> alone with contact on (one velocity field).
+!> alone with contact on (one velocity field); the test hooks' grid checks (cpdi_test_hooks).
 !> Built with -fsanitize=address and the debug flags; any invalid access or leak fails it.
 program memcheck_driver
   use, intrinsic :: iso_c_binding, only: c_int, c_double
   use cpdi_api
+  use cpdi_test_hooks, only: cpdi_poisson_project
   implicit none
   integer(c_int) :: h, ierr, nsteps, n, i, j, k, nb, nw
   character(len=512) :: msg

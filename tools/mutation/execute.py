@@ -59,6 +59,11 @@ def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[int | None, str, fl
         return None, out.decode(errors="replace") if isinstance(out, bytes) else str(out), time.perf_counter() - t0
 
 
+# The f2py extensions and where make build copies them (the Makefile's build target): the solver's,
+# the tests' and the bench's, each rebuilt from the mutated core.
+EXTENSIONS = {"_cpdi": "harness", "_cpdi_test": "tests", "_cpdi_bench": "tools"}
+
+
 class Worker:
     """One scratch copy of the committed tree with its own build directory."""
 
@@ -83,14 +88,16 @@ class Worker:
             raise RuntimeError(f"the unmutated tree does not build in {self.dir}")
 
     def build(self, timeout: float) -> bool | None:
-        """True if it built (the extension copied into harness/), False if not, None on time-out."""
+        """True if it built (the extensions copied where make build puts them), False if not, None on
+        time-out."""
         code, _, _ = _run([str(self.repo / ".venv" / "bin" / "meson"), "compile", "-C", "build"], self.dir, timeout)
         if code != 0:
             return None if code is None else False
-        for so in (self.dir / "harness").glob("_cpdi*.so"):
-            so.unlink()
-        for so in (self.dir / "build" / "fortran").glob("_cpdi*.so"):
-            shutil.copy2(so, self.dir / "harness" / so.name)
+        for name, home in EXTENSIONS.items():
+            for so in (self.dir / home).glob(f"{name}.*.so"):
+                so.unlink()
+            for so in (self.dir / "build" / "fortran").glob(f"{name}.*.so"):
+                shutil.copy2(so, self.dir / home / so.name)
         return True
 
     def tier(self, tests: list[str], timeout: float, fortran: bool = True) -> tuple[str, str, float]:

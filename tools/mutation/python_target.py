@@ -20,6 +20,8 @@ from collections import Counter, defaultdict
 from datetime import UTC, datetime
 from pathlib import Path
 
+from tools.mutation.execute import EXTENSIONS
+
 REPO = Path(__file__).resolve().parents[2]
 LINE = re.compile(r"^\s*(\S+?)__mutmut_\d+: (\w[\w ]*)$", re.M)
 
@@ -34,8 +36,9 @@ def main(jobs: int | None = None) -> int:
     tar = subprocess.run(["git", "archive", "--format=tar", rev], cwd=REPO, capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(work)], input=tar, check=True)
     (work / ".venv").symlink_to(REPO / ".venv")
-    for so in (REPO / "harness").glob("_cpdi*.so"):
-        shutil.copy2(so, work / "harness" / so.name)
+    for name, home in EXTENSIONS.items():
+        for so in (REPO / home).glob(f"{name}.*.so"):
+            shutil.copy2(so, work / home / so.name)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     env.pop("PYTEST_ADDOPTS", None)
     n = jobs or len(os.sched_getaffinity(0))
