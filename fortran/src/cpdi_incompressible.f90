@@ -450,14 +450,18 @@ contains
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     associate (mc => ic%mc)
       n1 = mc%nn(1)
-      mc%um = 0.0_wp
-      mc%vm = 0.0_wp
-      mc%u = 0.0_wp
-      mc%v = 0.0_wp
-      mc%uo = 0.0_wp
-      mc%vo = 0.0_wp
-      mc%fill = 0.0_wp
-      where (mc%cell == CELL_FLUID) mc%cell = CELL_AIR   ! walls stay
+      !$omp parallel do schedule(static)   ! element-wise: the same bits at any thread count
+      do k = 1, size(mc%um)
+        mc%um(k) = 0.0_wp
+        mc%vm(k) = 0.0_wp
+        mc%u(k) = 0.0_wp
+        mc%v(k) = 0.0_wp
+        mc%uo(k) = 0.0_wp
+        mc%vo(k) = 0.0_wp
+        mc%fill(k) = 0.0_wp
+        if (mc%cell(k) == CELL_FLUID) mc%cell(k) = CELL_AIR   ! walls stay
+      end do
+      !$omp end parallel do
       if (ic%coupled) call clear_coupled()
     end associate
     av = 1.0_wp/g%h**2
@@ -493,6 +497,7 @@ contains
       mc%levelset = .not. ic%coupled
       if (mc%levelset) then
         call mac_level_set(mc)
+        !$omp parallel do schedule(static) private(i, k)   ! each cell from lvl (read only): element-wise
         do j = mc%lo(2), mc%hi(2)
           do i = mc%lo(1), mc%hi(1)
             k = i + (j - 1)*n1
@@ -504,6 +509,7 @@ contains
             end if
           end do
         end do
+        !$omp end parallel do
       else if (.not. batty) then
       do j = mc%lo(2), mc%hi(2)
         do i = mc%lo(1), mc%hi(1)

@@ -286,26 +286,33 @@ contains
     integer :: pass
     real(wp), parameter :: w(-1:1) = [0.25_wp, 0.5_wp, 0.25_wp]
     n1 = mc%nn(1)
+    ! the cell loops are element-wise (threaded: the same bits at any thread count); ghost_ring is serial
+    !$omp parallel do schedule(static) private(i, c)
     do j = mc%lo(2), mc%hi(2)
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
         mc%lvl(c) = mc%fill(c)
       end do
     end do
+    !$omp end parallel do
     do pass = 1, LVL_PASSES
       call ghost_ring()
+      !$omp parallel do schedule(static) private(i, c)
       do j = mc%lo(2) - 1, mc%hi(2) + 1   ! along x into lvt, the ghost rows too
         do i = mc%lo(1), mc%hi(1)
           c = i + (j - 1)*n1
           mc%lvt(c) = w(-1)*mc%lvl(c - 1) + w(0)*mc%lvl(c) + w(1)*mc%lvl(c + 1)
         end do
       end do
+      !$omp end parallel do
+      !$omp parallel do schedule(static) private(i, c)
       do j = mc%lo(2), mc%hi(2)   ! along y back into lvl
         do i = mc%lo(1), mc%hi(1)
           c = i + (j - 1)*n1
           mc%lvl(c) = w(-1)*mc%lvt(c - n1) + w(0)*mc%lvt(c) + w(1)*mc%lvt(c + n1)
         end do
       end do
+      !$omp end parallel do
     end do
     do j = mc%lo(2) - 1, mc%hi(2) + 1   ! the ring back to air
       mc%lvl(mc%lo(1) - 1 + (j - 1)*n1) = LVL_MAX
@@ -315,12 +322,14 @@ contains
       mc%lvl(i + (mc%lo(2) - 2)*n1) = LVL_MAX
       mc%lvl(i + mc%hi(2)*n1) = LVL_MAX
     end do
+    !$omp parallel do schedule(dynamic, 4) private(i, c)   ! dynamic: only the surface's rows cost
     do j = mc%lo(2), mc%hi(2)   ! the smoothed fill to the distance
       do i = mc%lo(1), mc%hi(1)
         c = i + (j - 1)*n1
         mc%lvl(c) = fill_distance(mc%lvl(c))
       end do
     end do
+    !$omp end parallel do
   contains
     subroutine ghost_ring()
       !! The fill one cell beyond each edge (lvl's ring), set before the two passes so that the
