@@ -41,11 +41,16 @@ def render(readme: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m tools.readme_checks",
+                                 description="Write the README's table of checks from the checks' registry.")
+    ap.add_argument("--check", action="store_true", help="only compare: exit 1 if README.md's table differs")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     path = paths.SOURCE_ROOT / "README.md"
     old = path.read_text(encoding="utf-8")
     new = render(old)
-    if "--check" in argv:
+    if args.check:
         if new != old:
             print("README.md's table of checks is not what the checks register; run python -m tools.readme_checks",
                   file=sys.stderr)
