@@ -31,6 +31,9 @@ module cpdi_incompressible
   use cpdi_materials, only: material_t, MAT_FLUID, MAT_RIGID, MAT_RIGID_BODY
   use cpdi_rigid_body, only: rbody_t, rb_prepare, rb_assemble, rb_impulse
   use cpdi_options, only: opt_value
+  use cpdi_slots, only: DIAG_KINETIC, DIAG_STRAIN, DIAG_MOMENTUM_X, DIAG_MOMENTUM_Y, DIAG_GRAVITY_WORK, &
+                        DIAG_BODY_FORCE_WORK, DIAG_WALL_CLAMPS, DIAG_CG_ITERATIONS, DIAG_CG_RESIDUAL, DIAG_CG_TOTAL, &
+                        DIAG_CORRECTION_WORK, NDIAG, TIMER_SHAPE, TIMER_P2G, TIMER_GRID, TIMER_G2P, TIMER_PRESSURE
   use cpdi_pressure, only: mac_t, mac_alloc, mac_mark_outside, mac_walls, mac_assemble, mac_solve, mac_project, &
                            mac_extrapolate, mac_constrain, mac_ghost_pressure, mac_level_set, LVL_WATER, CELL_FLUID, CELL_AIR, &
                            CELL_SOLID
@@ -828,11 +831,11 @@ contains
     call tic(t0)
     call weights(ic, p, steps, st)
     if (.not. st%ok()) return
-    call toc(timers, 1, t0)
+    call toc(timers, TIMER_SHAPE, t0)
     mtol = 1.0e-12_wp*minval(p%m)
     call p2g_faces(ic, p, g, dt, gravity, ic%transfer == TRANSFER_APIC)
     call face_velocities(ic%mc, mtol)
-    call toc(timers, 2, t0)
+    call toc(timers, TIMER_P2G, t0)
     if (ic%visc > 0.0_wp) call viscosity(ic%mc, dt*ic%visc/ic%rho, mtol)
     batty = ic%coupled .and. ic%coupling == COUPLING_BATTY
     if (batty) then
@@ -844,7 +847,7 @@ contains
     else if (ic%coupled) then
       call solid_to_faces(ic, nm, nvx, nvy, mtol)
     end if
-    diag(15) = 0.0_wp
+    diag(DIAG_CG_ITERATIONS) = 0.0_wp
     ic%mc%nlr = 0   ! the correction's solve holds the bodies still
     call volume_correction(ic, dt, mtol, diag, converged, timers, t0)
     if (converged) then
@@ -856,12 +859,12 @@ contains
         call mac_assemble(ic%mc, dt, ic%rho, 0.0_wp)
         if (ic%coupled .and. ic%submode == SUBSTEPS_IMPLICIT) call solid_helmholtz(ic, dt)
       end if
-      call toc(timers, 3, t0)
+      call toc(timers, TIMER_GRID, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
-      call toc(timers, 8, t0)
-      diag(15) = diag(15) + real(ic%mc%iters, wp)
-      diag(16) = ic%mc%resid
-      diag(17) = diag(17) + real(ic%mc%iters, wp)
+      call toc(timers, TIMER_PRESSURE, t0)
+      diag(DIAG_CG_ITERATIONS) = diag(DIAG_CG_ITERATIONS) + real(ic%mc%iters, wp)
+      diag(DIAG_CG_RESIDUAL) = ic%mc%resid
+      diag(DIAG_CG_TOTAL) = diag(DIAG_CG_TOTAL) + real(ic%mc%iters, wp)
       if (batty .and. ic%rb%n > 0) then   ! the water leaves a free body next to the void
         do sweep = 1, SEPARATION_SWEEPS
           if (.not. converged) exit
@@ -870,9 +873,9 @@ contains
           call cpl_assemble(ic%mc, dt, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .true., 0.0_wp)
           call rb_assemble(ic%rb, ic%mc, g, ic%wu, ic%wv, ic%uvs, ic%vvs, ic%rho, dt)
           call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
-          diag(15) = diag(15) + real(ic%mc%iters, wp)
-          diag(16) = ic%mc%resid
-          diag(17) = diag(17) + real(ic%mc%iters, wp)
+          diag(DIAG_CG_ITERATIONS) = diag(DIAG_CG_ITERATIONS) + real(ic%mc%iters, wp)
+          diag(DIAG_CG_RESIDUAL) = ic%mc%resid
+          diag(DIAG_CG_TOTAL) = diag(DIAG_CG_TOTAL) + real(ic%mc%iters, wp)
         end do
       end if
     end if
@@ -907,9 +910,9 @@ contains
     call mac_constrain(ic%mc, ic%mc%u, ic%mc%v, .false.)   ! inside solids: their normal velocity
     call mac_constrain(ic%mc, ic%mc%uo, ic%mc%vo, .true.)   ! (no FLIP increment there)
     call mac_ghost_pressure(ic%mc)
-    call toc(timers, 3, t0)
+    call toc(timers, TIMER_GRID, t0)
     call g2p_faces(ic, g, p, flip, dt, gravity, diag, smax, st, steps)
-    call toc(timers, 4, t0)
+    call toc(timers, TIMER_G2P, t0)
   end subroutine incomp_step
 
   subroutine separate_from_bodies(ic, changed)
@@ -1239,15 +1242,15 @@ contains
     else
       call mac_assemble(ic%mc, dt, ic%rho, ic%beta)
     end if
-    call toc(timers, 3, t0)
+    call toc(timers, TIMER_GRID, t0)
     if (ic%coupled) then   ! the solids' packing against the water: to the run's tolerance
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
     else
       call mac_solve(ic%mc, opt_value(ic%mc%ov, 'correction_tolerance'), ic%maxit, converged)
     end if
-    call toc(timers, 8, t0)
-    diag(15) = real(ic%mc%iters, wp)
-    diag(17) = diag(17) + real(ic%mc%iters, wp)
+    call toc(timers, TIMER_PRESSURE, t0)
+    diag(DIAG_CG_ITERATIONS) = real(ic%mc%iters, wp)
+    diag(DIAG_CG_TOTAL) = diag(DIAG_CG_TOTAL) + real(ic%mc%iters, wp)
     if (converged) then
       call mac_project(ic%mc, dtc, ic%rho, still=.true.)
       call mac_extrapolate(ic%mc, ic%mc%u, ic%mc%uval, EXTRAPOLATION_LAYERS)
@@ -1266,11 +1269,11 @@ contains
       dtc = max(dt, ic%dt_corr)
       call cpl_assemble(ic%mc, dtc, ic%rho, ic%wu, ic%wv, ic%usm, ic%vsm, ic%us, ic%vs, mtol, .false., ic%beta, &
                         ic%fillw, ic%sfill)
-      call toc(timers, 3, t0)
+      call toc(timers, TIMER_GRID, t0)
       call mac_solve(ic%mc, ic%tol, ic%maxit, converged)
-      call toc(timers, 8, t0)
-      diag(15) = real(ic%mc%iters, wp)
-      diag(17) = diag(17) + real(ic%mc%iters, wp)
+      call toc(timers, TIMER_PRESSURE, t0)
+      diag(DIAG_CG_ITERATIONS) = real(ic%mc%iters, wp)
+      diag(DIAG_CG_TOTAL) = diag(DIAG_CG_TOTAL) + real(ic%mc%iters, wp)
       if (converged) then
         call mac_project(ic%mc, dtc, ic%rho, still=.true.)
         where (ic%wu >= 1.0_wp) ic%mc%uval = 0   ! the solid's inside: no water velocity of its own
@@ -1375,14 +1378,14 @@ contains
       call st%set(CPDI_ERR_NAN, trim(buf))
       return
     end do
-    diag(4) = sum(ic%red(1, :))
-    diag(5) = 0.0_wp
-    diag(6) = sum(ic%red(2, :))
-    diag(7) = sum(ic%red(3, :))
-    diag(8) = diag(8) + sum(ic%red(4, :))
-    diag(9) = diag(9) + sum(ic%red(5, :))
-    diag(12) = sum(ic%red(6, :))
-    diag(18) = diag(18) + sum(ic%red(7, :))
+    diag(DIAG_KINETIC) = sum(ic%red(1, :))
+    diag(DIAG_STRAIN) = 0.0_wp
+    diag(DIAG_MOMENTUM_X) = sum(ic%red(2, :))
+    diag(DIAG_MOMENTUM_Y) = sum(ic%red(3, :))
+    diag(DIAG_GRAVITY_WORK) = diag(DIAG_GRAVITY_WORK) + sum(ic%red(4, :))
+    diag(DIAG_BODY_FORCE_WORK) = diag(DIAG_BODY_FORCE_WORK) + sum(ic%red(5, :))
+    diag(DIAG_WALL_CLAMPS) = sum(ic%red(6, :))
+    diag(DIAG_CORRECTION_WORK) = diag(DIAG_CORRECTION_WORK) + sum(ic%red(7, :))
     smax = sqrt(2.0_wp)*vmax + sqrt(norm2(gravity)*g%h)
   end subroutine g2p_faces
 
@@ -1524,7 +1527,7 @@ contains
     type(grid_t), intent(in) :: g
     type(particles_t), intent(inout) :: p
     type(status_t), intent(inout) :: st
-    real(wp) :: diag(18), smax
+    real(wp) :: diag(NDIAG), smax
     integer(int64), parameter :: zero = 0
     call weights(ic, p, zero, st)
     if (.not. st%ok()) return
