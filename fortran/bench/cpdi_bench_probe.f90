@@ -5,21 +5,13 @@ module cpdi_bench_probe
   !! cpdi_api: ierr and a message, no stop.
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: ik
-  use cpdi_status, only: status_t, MSG_LEN
+  use cpdi_status, only: status_t, MSG_LEN, finish => status_finish
   implicit none
   private
 
   public :: cpdi_core_round_trip
 
 contains
-
-  subroutine finish(st, ierr, msg)
-    type(status_t), intent(in) :: st
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    ierr = st%code
-    msg = st%msg
-  end subroutine finish
 
   subroutine cpdi_core_round_trip(iters, ns, ierr, msg)
     !! Mean wall time [ns] of one cache-line round trip between two OpenMP threads, over

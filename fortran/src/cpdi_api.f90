@@ -12,7 +12,8 @@ module cpdi_api
   use cpdi_slots, only: DIAG_MASS, NPSTATE, NSSTATE, ROW_X, ROW_V, ROW_F, ROW_L, ROW_SIG, ROW_R, ROW_BF, ROW_VOL, &
                         ROW_PSI, ROW_JBAR, ROW_AW, NROWFIELD, ROW_NAMES, ROW_FIRST, SCAL_T, SCAL_STEPS, SCAL_SMAX, &
                         SCAL_VISC_DT, SCAL_DT_LAST, NSCALAR, SCALAR_NAMES, DIAG_NAMES, TIMER_NAMES, SLOT_NAME_LEN
-  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, CPDI_ERR_LAPACK
+  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_HANDLE, CPDI_ERR_STATE, CPDI_ERR_LAPACK, &
+                         finish => status_finish
   use cpdi_grid, only: grid_init, GRID_PAD
   use cpdi_particles, only: particles_alloc
   use cpdi_shape, only: shape_count, shape_slot
@@ -53,14 +54,6 @@ module cpdi_api
   public :: cpdi_full_state_size, cpdi_get_full_state, cpdi_set_full_state
 
 contains
-
-  subroutine finish(st, ierr, msg)
-    type(status_t), intent(in) :: st
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    ierr = st%code
-    msg = st%msg
-  end subroutine finish
 
   subroutine lookup(handle, s, st)
     !! Resolve a handle to its simulation; s is null when st reports an error. Callers test

@@ -2,6 +2,7 @@
 module cpdi_status
   !! Errors follow json-fortran/fpm practice: a status object carries a code and a
   !! message, and nothing in the solver ever stops the process.
+  use, intrinsic :: iso_c_binding, only: c_int
   use cpdi_kinds, only: ik
   implicit none
   private
@@ -20,6 +21,8 @@ module cpdi_status
   integer(ik), parameter, public :: CPDI_ERR_SOLVE = 11    !! pressure solve did not converge
 
   integer, parameter, public :: MSG_LEN = 512              !! length of every message
+
+  public :: status_finish
 
   type, public :: status_t
     !! Result of a fallible operation.
@@ -48,6 +51,16 @@ contains
     class(status_t), intent(in) :: self
     status_ok = self%code == CPDI_OK
   end function status_ok
+
+  pure subroutine status_finish(st, ierr, msg)
+    !! An API routine's outputs from its status: the code as ierr and the message (every extension's
+    !! routines end with it: cpdi_api, the test hooks, the bench probe).
+    type(status_t), intent(in) :: st
+    integer(c_int), intent(out) :: ierr
+    character(len=MSG_LEN), intent(out) :: msg
+    ierr = int(st%code, c_int)
+    msg = st%msg
+  end subroutine status_finish
 
   pure subroutine status_clear(self)
     !! Reset to success.

@@ -6,7 +6,7 @@ module cpdi_test_hooks
   !! Same conventions as cpdi_api: explicit-shape arrays, ierr and a message, no stop.
   use, intrinsic :: iso_c_binding, only: c_double, c_int
   use cpdi_kinds, only: wp
-  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_SOLVE
+  use cpdi_status, only: status_t, MSG_LEN, CPDI_ERR_INPUT, CPDI_ERR_SOLVE, finish => status_finish
   use cpdi_pressure, only: mac_t, mac_alloc, mac_walls, mac_assemble, mac_apply, mac_solve, mac_project, CELL_FLUID, &
                            mac_precondition, PRECOND_MIC0, PRECOND_MULTIGRID
   implicit none
@@ -15,14 +15,6 @@ module cpdi_test_hooks
   public :: cpdi_poisson_apply, cpdi_poisson_precond, cpdi_poisson_project
 
 contains
-
-  subroutine finish(st, ierr, msg)
-    type(status_t), intent(in) :: st
-    integer(c_int), intent(out) :: ierr
-    character(len=MSG_LEN), intent(out) :: msg
-    ierr = st%code
-    msg = st%msg
-  end subroutine finish
 
   subroutine test_mac(mc, nx, ny, cell, fill, h, st)
     !! A stand-alone staggered grid of nx x ny cells whose outer ring is boundary (its
